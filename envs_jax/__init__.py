@@ -1,0 +1,19 @@
+"""Pure-JAX two-agent driving simulator reproducing highway-env (merge, roundabout, ...).
+
+>>> import jax, envs_jax
+>>> env = envs_jax.make("merge")
+>>> obs, state = env.reset(jax.random.key(0), env.default_params)
+>>> obs, state, reward, cost, done, info = env.step(jax.random.key(1), state, jax.numpy.array([1, 1]),
+...                                                env.default_params)
+"""
+
+from envs_jax.env import DrivingEnv, EnvParams, EnvState
+from envs_jax.registry import make, register, scenarios
+from envs_jax.scenarios.merge import Merge
+from envs_jax.scenarios.roundabout import Roundabout
+from envs_jax.wrappers import AutoResetWrapper, rollout
+
+register("merge", Merge)
+register("roundabout", Roundabout)
+
+__all__ = ["make", "scenarios", "register", "DrivingEnv", "EnvParams", "EnvState", "AutoResetWrapper", "rollout"]

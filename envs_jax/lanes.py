@@ -1,0 +1,293 @@
+"""Lane geometry: straight, sine and circular lanes on one padded table.
+
+Every lane of a scenario is one row of a :class:`LaneTable`. The table is
+built on the host in float64 with exactly the arithmetic of highway-env's
+``StraightLane``, ``SineLane`` and ``CircularLane`` constructors, and is turned
+into JAX constants at trace time (so it follows ``jax_enable_x64``).
+
+Two kinds of query exist:
+
+* single-lane queries (``local_coordinates``, ``position``, ``heading_at``,
+  ...) take a traced lane index and evaluate the three lane formulas on the
+  gathered row, selecting the right one with ``jnp.where``;
+* all-lane queries (``local_coordinates_all``) evaluate each lane family only on
+  its own rows (a static partition of the table) and scatter the results back
+  into table order, so the closest-lane search costs one pass per family.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Sequence
+
+import jax.numpy as jnp
+import numpy as np
+
+STRAIGHT, SINE, CIRCULAR = 0, 1, 2
+
+# highway-env LineType values, kept for rendering.
+LINE_NONE, LINE_STRIPED, LINE_CONTINUOUS, LINE_CONTINUOUS_LINE = 0, 1, 2, 3
+
+DEFAULT_WIDTH = 4.0
+VEHICLE_LENGTH = 5.0  # AbstractLane.VEHICLE_LENGTH: margins of on_lane / after_end / reachable
+
+# Columns of the float table. Straight and sine lanes use start..phase; circular
+# lanes use center..cdir. Unused columns are zero.
+_FIELDS = (
+    "start_x", "start_y", "end_x", "end_y", "dir_x", "dir_y", "lat_x", "lat_y",
+    "heading", "length", "width", "amplitude", "pulsation", "phase",
+    "center_x", "center_y", "radius", "start_phase", "end_phase", "cdir",
+    "speed_limit",
+)
+_COL = {name: i for i, name in enumerate(_FIELDS)}
+
+
+@dataclasses.dataclass(frozen=True)
+class LaneSpec:
+    """One lane, as highway-env constructs it (host side, float64)."""
+
+    kind: int
+    values: tuple  # len(_FIELDS) floats
+    forbidden: bool
+    line_types: tuple[int, int]
+
+
+def straight(start, end, width=DEFAULT_WIDTH, line_types=(LINE_STRIPED, LINE_STRIPED),
+             forbidden=False, speed_limit=20.0) -> LaneSpec:
+    """``StraightLane(start, end)``: heading, length and unit vectors as highway-env computes them."""
+    start = np.asarray(start, dtype=np.float64)
+    end = np.asarray(end, dtype=np.float64)
+    heading = np.arctan2(end[1] - start[1], end[0] - start[0])
+    length = np.linalg.norm(end - start)
+    direction = (end - start) / length
+    lateral = np.array([-direction[1], direction[0]])
+    row = dict(start_x=start[0], start_y=start[1], end_x=end[0], end_y=end[1],
+               dir_x=direction[0], dir_y=direction[1], lat_x=lateral[0], lat_y=lateral[1],
+               heading=heading, length=length, width=width, speed_limit=speed_limit)
+    return _spec(STRAIGHT, row, forbidden, line_types)
+
+
+def sine(start, end, amplitude, pulsation, phase, width=DEFAULT_WIDTH,
+         line_types=(LINE_STRIPED, LINE_STRIPED), forbidden=False, speed_limit=20.0) -> LaneSpec:
+    """``SineLane``: a straight lane whose centre line is offset by ``A sin(w s + phase)``."""
+    base = straight(start, end, width, line_types, forbidden, speed_limit)
+    row = dict(zip(_FIELDS, base.values))
+    row.update(amplitude=amplitude, pulsation=pulsation, phase=phase)
+    return _spec(SINE, row, forbidden, line_types)
+
+
+def circular(center, radius, start_phase, end_phase, clockwise=True, width=DEFAULT_WIDTH,
+             line_types=(LINE_STRIPED, LINE_STRIPED), forbidden=False, speed_limit=20.0) -> LaneSpec:
+    """``CircularLane``: arc of ``radius`` around ``center`` from ``start_phase`` to ``end_phase``."""
+    cdir = 1.0 if clockwise else -1.0
+    length = radius * (end_phase - start_phase) * cdir
+    row = dict(center_x=center[0], center_y=center[1], radius=radius, start_phase=start_phase,
+               end_phase=end_phase, cdir=cdir, length=length, width=width, speed_limit=speed_limit)
+    return _spec(CIRCULAR, row, forbidden, line_types)
+
+
+def _spec(kind, row, forbidden, line_types) -> LaneSpec:
+    values = tuple(float(row.get(name, 0.0)) for name in _FIELDS)
+    return LaneSpec(kind=kind, values=values, forbidden=bool(forbidden),
+                    line_types=tuple(int(t) for t in line_types))
+
+
+class LaneTable:
+    """All lanes of a road, padded into one float64 table (rows in road-network order).
+
+    Host-side object: its arrays are numpy; ``col(name)`` returns a JAX constant
+    of the current default float dtype, created when traced.
+    """
+
+    def __init__(self, specs: Sequence[LaneSpec]):
+        if not specs:
+            raise ValueError("a lane table needs at least one lane")
+        self.size = len(specs)
+        self.kind = np.array([s.kind for s in specs], dtype=np.int32)
+        self.forbidden = np.array([s.forbidden for s in specs], dtype=bool)
+        self.line_types = np.array([s.line_types for s in specs], dtype=np.int32)
+        self.table = np.array([s.values for s in specs], dtype=np.float64)
+        # Static partition used by the all-lane queries.
+        self.linear_rows = np.nonzero(self.kind != CIRCULAR)[0]
+        self.sine_rows_in_linear = np.nonzero(self.kind[self.linear_rows] == SINE)[0]
+        self.circular_rows = np.nonzero(self.kind == CIRCULAR)[0]
+        order = np.concatenate([self.linear_rows, self.circular_rows])
+        self._unpermute = np.argsort(order)  # family-concatenated -> table order
+
+    def np_col(self, name: str) -> np.ndarray:
+        return self.table[:, _COL[name]]
+
+    def col(self, name: str, rows=None):
+        values = self.table[:, _COL[name]] if rows is None else self.table[rows, _COL[name]]
+        return jnp.asarray(values)
+
+    def row(self, idx):
+        """Gather lane ``idx`` (traced int, any shape) as a dict of JAX arrays."""
+        table = jnp.asarray(self.table)
+        gathered = table[idx]
+        out = {name: gathered[..., i] for i, name in enumerate(_FIELDS)}
+        out["kind"] = jnp.asarray(self.kind)[idx]
+        out["forbidden"] = jnp.asarray(self.forbidden)[idx]
+        return out
+
+
+# --------------------------------------------------------------------------------------------
+# Elementary formulas (highway-env lane.py), on dicts of arrays that broadcast together.
+
+
+def wrap_to_pi(x):
+    """``utils.wrap_to_pi``: ((x + pi) mod 2 pi) - pi."""
+    return jnp.mod(x + jnp.pi, 2 * jnp.pi) - jnp.pi
+
+
+def _linear_local(r, px, py):
+    dx = px - r["start_x"]
+    dy = py - r["start_y"]
+    s = dx * r["dir_x"] + dy * r["dir_y"]
+    lat = dx * r["lat_x"] + dy * r["lat_y"]
+    return s, lat
+
+
+def _sine_offset(r, s):
+    return r["amplitude"] * jnp.sin(r["pulsation"] * s + r["phase"])
+
+
+def _circular_local(r, px, py):
+    dx = px - r["center_x"]
+    dy = py - r["center_y"]
+    phi = jnp.arctan2(dy, dx)
+    phi = r["start_phase"] + wrap_to_pi(phi - r["start_phase"])
+    radius = jnp.sqrt(dx * dx + dy * dy)
+    s = r["cdir"] * (phi - r["start_phase"]) * r["radius"]
+    lat = r["cdir"] * (r["radius"] - radius)
+    return s, lat
+
+
+def local_coordinates(lanes: LaneTable, idx, px, py):
+    """World position -> (longitudinal, lateral) on lane ``idx`` (``lane.local_coordinates``)."""
+    r = lanes.row(idx)
+    s_lin, lat_lin = _linear_local(r, px, py)
+    lat_lin = jnp.where(r["kind"] == SINE, lat_lin - _sine_offset(r, s_lin), lat_lin)
+    s_cir, lat_cir = _circular_local(r, px, py)
+    circ = r["kind"] == CIRCULAR
+    return jnp.where(circ, s_cir, s_lin), jnp.where(circ, lat_cir, lat_lin)
+
+
+def position(lanes: LaneTable, idx, s, lat):
+    """(longitudinal, lateral) on lane ``idx`` -> world position (``lane.position``)."""
+    r = lanes.row(idx)
+    lat_lin = jnp.where(r["kind"] == SINE, lat + _sine_offset(r, s), lat)
+    x_lin = r["start_x"] + s * r["dir_x"] + lat_lin * r["lat_x"]
+    y_lin = r["start_y"] + s * r["dir_y"] + lat_lin * r["lat_y"]
+    phi = r["cdir"] * s / jnp.where(r["radius"] == 0, 1.0, r["radius"]) + r["start_phase"]
+    rad = r["radius"] - lat * r["cdir"]
+    x_cir = r["center_x"] + rad * jnp.cos(phi)
+    y_cir = r["center_y"] + rad * jnp.sin(phi)
+    circ = r["kind"] == CIRCULAR
+    return jnp.where(circ, x_cir, x_lin), jnp.where(circ, y_cir, y_lin)
+
+
+def _heading_from_row(r, s):
+    sine_term = jnp.arctan(r["amplitude"] * r["pulsation"] * jnp.cos(r["pulsation"] * s + r["phase"]))
+    h_lin = jnp.where(r["kind"] == SINE, r["heading"] + sine_term, r["heading"])
+    radius = jnp.where(r["radius"] == 0, 1.0, r["radius"])
+    h_cir = r["cdir"] * s / radius + r["start_phase"] + jnp.pi / 2 * r["cdir"]
+    return jnp.where(r["kind"] == CIRCULAR, h_cir, h_lin)
+
+
+def heading_at(lanes: LaneTable, idx, s):
+    """Lane heading at longitudinal coordinate ``s`` (``lane.heading_at``)."""
+    return _heading_from_row(lanes.row(idx), s)
+
+
+def width(lanes: LaneTable, idx):
+    return lanes.row(idx)["width"]
+
+
+def length(lanes: LaneTable, idx):
+    return lanes.row(idx)["length"]
+
+
+def on_lane_coords(lane_length, lane_width, s, lat):
+    """``lane.on_lane``: |lat| <= width/2 and -5 <= s < length + 5."""
+    return (jnp.abs(lat) <= lane_width / 2) & (-VEHICLE_LENGTH <= s) & (s < lane_length + VEHICLE_LENGTH)
+
+
+def on_lane(lanes: LaneTable, idx, px, py):
+    s, lat = local_coordinates(lanes, idx, px, py)
+    r = lanes.row(idx)
+    return on_lane_coords(r["length"], r["width"], s, lat)
+
+
+def after_end(lanes: LaneTable, idx, px, py):
+    """``lane.after_end``: s > length - VEHICLE_LENGTH / 2."""
+    s, _ = local_coordinates(lanes, idx, px, py)
+    return s > lanes.row(idx)["length"] - VEHICLE_LENGTH / 2
+
+
+def is_reachable_from(lanes: LaneTable, idx, px, py):
+    """``lane.is_reachable_from``: not forbidden, |lat| <= 2 width, 0 <= s < length + 5."""
+    s, lat = local_coordinates(lanes, idx, px, py)
+    r = lanes.row(idx)
+    close = (jnp.abs(lat) <= 2 * r["width"]) & (0 <= s) & (s < r["length"] + VEHICLE_LENGTH)
+    return close & ~r["forbidden"]
+
+
+def distance_from_coords(lane_length, s, lat):
+    """``lane.distance``: |lat| + max(s - L, 0) + max(-s, 0)."""
+    return jnp.abs(lat) + jnp.maximum(s - lane_length, 0) + jnp.maximum(0 - s, 0)
+
+
+def distance(lanes: LaneTable, idx, px, py):
+    s, lat = local_coordinates(lanes, idx, px, py)
+    return distance_from_coords(lanes.row(idx)["length"], s, lat)
+
+
+# --------------------------------------------------------------------------------------------
+# All lanes at once.
+
+
+def local_coordinates_all(lanes: LaneTable, px, py):
+    """(s, lat, heading_at(s)) of a point on every lane, shape ``[..., L]`` in table order.
+
+    Each lane family is evaluated only on its own rows; a static permutation puts
+    the results back in table order (which decides highway-env's tie-breaking).
+    """
+    px = jnp.asarray(px)[..., None]
+    py = jnp.asarray(py)[..., None]
+    parts_s, parts_lat, parts_h = [], [], []
+    if lanes.linear_rows.size:
+        rows = lanes.linear_rows
+        r = {name: lanes.col(name, rows) for name in _FIELDS}
+        s, lat = _linear_local(r, px, py)
+        h = jnp.broadcast_to(r["heading"], s.shape)
+        if lanes.sine_rows_in_linear.size:
+            sub = lanes.sine_rows_in_linear
+            rs = {name: v[sub] for name, v in r.items()}
+            s_sin = s[..., sub]
+            lat = lat.at[..., sub].add(-_sine_offset(rs, s_sin))
+            h = h.at[..., sub].add(jnp.arctan(rs["amplitude"] * rs["pulsation"]
+                                              * jnp.cos(rs["pulsation"] * s_sin + rs["phase"])))
+        parts_s.append(s)
+        parts_lat.append(lat)
+        parts_h.append(h)
+    if lanes.circular_rows.size:
+        rows = lanes.circular_rows
+        r = {name: lanes.col(name, rows) for name in _FIELDS}
+        s, lat = _circular_local(r, px, py)
+        h = r["cdir"] * s / r["radius"] + r["start_phase"] + jnp.pi / 2 * r["cdir"]
+        parts_s.append(s)
+        parts_lat.append(lat)
+        parts_h.append(h)
+    if len(parts_s) == 1:
+        return parts_s[0], parts_lat[0], parts_h[0]
+    perm = lanes._unpermute
+    cat = lambda parts: jnp.concatenate(parts, axis=-1)[..., perm]
+    return cat(parts_s), cat(parts_lat), cat(parts_h)
+
+
+def distance_with_heading_all(lanes: LaneTable, px, py, heading):
+    """``lane.distance_with_heading`` for every lane: |lat| + out-of-range s + |wrap(psi - psi_lane(s))|."""
+    s, lat, lane_heading = local_coordinates_all(lanes, px, py)
+    angle = jnp.abs(wrap_to_pi(jnp.asarray(heading)[..., None] - lane_heading))
+    return distance_from_coords(lanes.col("length"), s, lat) + angle, s, lat

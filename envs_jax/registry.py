@@ -1,0 +1,147 @@
+"""``envs_jax.make``: scenario lookup, parameter overrides and the authors' ``env_config.json``."""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, Callable
+
+import numpy as np
+
+from envs_jax.env import DrivingEnv, Scenario
+
+_SCENARIOS: dict[str, Callable[[], Scenario]] = {}
+_CACHE: dict[str, Scenario] = {}
+
+STATIC_KEYS = ("simulation_frequency", "policy_frequency")
+
+# env_config.json keys that only affect rendering or bookkeeping of the original code.
+_RENDER_KEYS = frozenset({"screen_width", "screen_height", "scaling", "centering_position", "show_trajectories",
+                          "render_agent", "offscreen_rendering", "manual_control", "real_time_rendering",
+                          "render_mode", "other_vehicles_type", "controlled_vehicles", "normalize_reward",
+                          "offroad_terminal", "neighbour_vehicles_connected_lanes"})
+
+_EXPECTED_OBS = {"type": "Kinematics", "features": ["x", "y", "vx", "vy"], "vehicles_count": 2,
+                 "absolute": True, "normalize": False}
+
+
+def register(name: str, factory: Callable[[], Scenario]) -> None:
+    _SCENARIOS[name] = factory
+
+
+def scenarios() -> list[str]:
+    return sorted(_SCENARIOS)
+
+
+def _scenario(name: str) -> Scenario:
+    if name not in _SCENARIOS:
+        raise ValueError(f"unknown scenario {name!r}; available: {', '.join(scenarios())}")
+    if name not in _CACHE:
+        _CACHE[name] = _SCENARIOS[name]()
+    return _CACHE[name]
+
+
+def make(name: str, env_config: dict | None = None, **overrides: Any) -> DrivingEnv:
+    """Create a scenario's environment.
+
+    ``overrides`` are fields of the scenario's params (see ``env.default_params``)
+    or the static ``simulation_frequency`` / ``policy_frequency``.
+    ``env_config`` is the original repository's ``env_config.json`` dict; the
+    keys that apply are translated, rendering keys are ignored, and anything
+    else raises ``ValueError``.
+    """
+    scenario = _scenario(name)
+    params = scenario.default_params()
+    static = {"simulation_frequency": scenario.simulation_frequency,
+              "policy_frequency": scenario.policy_frequency}
+    values: dict[str, Any] = {}
+    if env_config is not None:
+        values.update(_translate_env_config(scenario, params, env_config))
+    values.update(overrides)
+    fields = {f.name for f in dataclasses.fields(params)}
+    unknown = sorted(k for k in values if k not in fields and k not in STATIC_KEYS)
+    if unknown:
+        raise ValueError(f"{name}: unknown parameter(s) {unknown}; allowed: {sorted(fields) + list(STATIC_KEYS)}")
+    for key in STATIC_KEYS:
+        if key in values:
+            static[key] = values.pop(key)
+    sim, pol = static["simulation_frequency"], static["policy_frequency"]
+    if not (isinstance(sim, (int, np.integer)) and isinstance(pol, (int, np.integer)) and 0 < pol <= sim):
+        raise ValueError(f"{name}: simulation_frequency and policy_frequency must be integers with "
+                         f"0 < policy_frequency <= simulation_frequency, got {sim} and {pol}")
+    values = {k: _check_value(name, params, k, v) for k, v in values.items()}
+    params = params.replace(**values)
+    return DrivingEnv(scenario, sim, pol, params)
+
+
+def _check_value(name, params, key, value):
+    default = getattr(params, key)
+    if default is None or value is None:
+        return value
+    if np.ndim(default) == 0:
+        if not np.isscalar(value) and np.ndim(value) != 0:
+            raise ValueError(f"{name}: parameter {key!r} must be a number, got {value!r}")
+        if not np.isfinite(float(value)):
+            raise ValueError(f"{name}: parameter {key!r} must be finite, got {value!r}")
+        return float(value)
+    arr = np.asarray(value, dtype=np.float64)
+    if key == "target_speeds":
+        if arr.ndim != 1 or arr.size < 2 or not np.all(np.diff(arr) > 0):
+            raise ValueError(f"{name}: target_speeds must be an increasing list of at least 2 speeds, got {value!r}")
+        return arr
+    if arr.shape[1:] != np.shape(default)[1:] or (key != "obstacles" and arr.shape != np.shape(default)):
+        raise ValueError(f"{name}: parameter {key!r} must have shape {np.shape(default)}, got {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name}: parameter {key!r} must be finite, got {value!r}")
+    return arr
+
+
+def _translate_env_config(scenario: Scenario, params, config: dict) -> dict:
+    name = scenario.name
+    out: dict[str, Any] = {}
+    for key, value in config.items():
+        if key in ("duration", "simulation_frequency", "policy_frequency"):
+            out[key] = value
+        elif key == "action":
+            out.update(_translate_action(scenario, value))
+        elif key == "observation":
+            _check_observation(name, value)
+        elif key in _RENDER_KEYS or key in scenario.inert_config_keys:
+            continue
+        elif key in {f.name for f in dataclasses.fields(params)}:
+            out[key] = value
+        else:
+            raise ValueError(f"{name}: env_config key {key!r} is not understood; understood keys: duration, "
+                             f"simulation_frequency, policy_frequency, action, observation, the params fields, "
+                             f"and (ignored) {sorted(_RENDER_KEYS | scenario.inert_config_keys)}")
+    return out
+
+
+def _translate_action(scenario: Scenario, action: dict) -> dict:
+    name = scenario.name
+    if action.get("type") == "MultiAgentAction":
+        action = action.get("action_config", {})
+    kind = action.get("type")
+    if scenario.discrete:
+        if kind != "DiscreteMetaAction":
+            raise ValueError(f"{name}: action type must be DiscreteMetaAction, got {kind!r}")
+        out = {}
+        if "target_speeds" in action:
+            out["target_speeds"] = action["target_speeds"]
+        return out
+    if kind != "ContinuousAction":
+        raise ValueError(f"{name}: action type must be ContinuousAction, got {kind!r}")
+    lon = action.get("longitudinal", True)
+    lat = action.get("lateral", True)
+    if (lon, lat) != (scenario.longitudinal, scenario.lateral):
+        raise ValueError(f"{name}: ContinuousAction(longitudinal={lon}, lateral={lat}) is not this scenario's "
+                         f"(longitudinal={scenario.longitudinal}, lateral={scenario.lateral})")
+    return {}
+
+
+def _check_observation(name: str, obs: dict) -> None:
+    if obs.get("type") == "MultiAgentObservation":
+        obs = obs.get("observation_config", {})
+    for key, expected in _EXPECTED_OBS.items():
+        if key in obs and obs[key] != expected:
+            raise ValueError(f"{name}: observation {key}={obs[key]!r} is not supported; "
+                             f"the simulator implements {_EXPECTED_OBS}")
