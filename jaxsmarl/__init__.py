@@ -1,0 +1,1 @@
+from jaxsmarl.stackelberg import stackelberg_equilibrium, stackelberg_values

@@ -1,0 +1,287 @@
+"""Batched constrained Stackelberg equilibrium selection over a joint-action grid.
+
+Paper equation (p14) and Algorithm 1 (CSQ): for the next state s' the target joint action is
+
+    BR(a1) = argmax_{a2 : G2(a1, a2) <= d2} Q2(a1, a2)                 (follower best response)
+    a1*    = argmax_{a1 : G1(a1, BR(a1)) <= d1} Q1(a1, BR(a1))         (leader, anticipating BR)
+    a2*    = BR(a1*)
+
+and the TD targets (p15/p16, Algorithm 1) read Q_i^targ(s', a1*, a2*), G_i^targ(s', a1*, a2*).
+Here every value is a tensor ``[..., A1, A2]`` (critics evaluated on the whole joint-action grid), so the
+equilibrium is a masked reduction over the action axes: no loops over the batch or the actions.
+
+The same code handles k levels ``[..., A1, ..., Ak]`` (the paper's vertical multi-level expansion) by
+backward induction: agent k best-responds to every prefix (a1..a_{k-1}); agent k-1 maximises its Q over
+a_{k-1} given that response, subject to its own constraint evaluated at that response; ... up to agent 1.
+
+Rules fixed here (the paper leaves them open):
+
+* Ties: among equal maxima the LOWEST index wins (``tie_break="first"``, i.e. ``jnp.argmax``). Follower
+  ties are broken by index, not in the leader's favour (neither the strong nor the weak SSE convention).
+  ``tie_break="last"`` makes the highest index win instead (the authors' ``>=`` loops).
+* No feasible action at a level (``infeasible``):
+  ``"min_cost"`` (default): take the action with the lowest cost estimate, ties to the highest Q, then the
+  index rule; ``"argmax"``: the unconstrained argmax of Q (the authors' "backup").
+* ``leader_rule="authors"`` reproduces the rule coded in the authors' CSQ (original_code.md §4.1):
+  ``a1* = argmax_{a1} max_{a2 : G1(a1,a2) <= d1} Q1(a1, a2)``, a max-max over jointly feasible pairs
+  under the leader's own Q1/G1 only (fallback when no pair is feasible: the ``infeasible`` rule applied
+  over all pairs), then the follower plays its constrained best response to a1*. For k levels it is
+  applied top-down: each agent, given the actions already chosen above it, takes its action from the best
+  jointly feasible completion under its own Q/G. Its default tie rule is "last" in the authors' loop order
+  (a1 outer, ..., ak inner), which is what their ``>=`` comparisons do.
+
+NaN values give a valid index but an otherwise unspecified choice.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from functools import partial
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+__all__ = ["stackelberg_equilibrium", "stackelberg_values"]
+
+INFEASIBLE_RULES = ("min_cost", "argmax")
+LEADER_RULES = ("stackelberg", "authors")
+TIE_BREAKS = ("first", "last")
+
+
+# ----------------------------------------------------------------------------------------------------
+# Masked lexicographic selection along one axis (the only reduction used).
+# ----------------------------------------------------------------------------------------------------
+
+
+def _lowest(dtype) -> jax.Array:
+    """A value no larger than any value of ``dtype`` (used only where a mask already excludes it)."""
+    if jnp.issubdtype(dtype, jnp.inexact):
+        return jnp.array(-jnp.inf, dtype)
+    if jnp.issubdtype(dtype, jnp.bool_):
+        return jnp.array(False)
+    return jnp.array(jnp.iinfo(dtype).min, dtype)
+
+
+def _best(x: jax.Array, cand: jax.Array) -> jax.Array:
+    """Mask of the candidates (``cand``) that attain the maximum of ``x`` along the last axis.
+
+    Exact for any values, including -inf: the sentinel only fills non-candidates, which are masked out.
+    """
+    m = jnp.max(jnp.where(cand, x, _lowest(x.dtype)), axis=-1, keepdims=True)
+    return cand & (x == m)
+
+
+def _index(hits: jax.Array, last: bool) -> jax.Array:
+    """First (or last) True along the last axis, as int32."""
+    if last:
+        n = hits.shape[-1]
+        return (n - 1 - jnp.argmax(hits[..., ::-1], axis=-1)).astype(jnp.int32)
+    return jnp.argmax(hits, axis=-1).astype(jnp.int32)
+
+
+def _select(q: jax.Array, g: jax.Array, d: jax.Array, infeasible: str, last: bool) -> jax.Array:
+    """Constrained argmax of ``q`` along the last axis subject to ``g <= d``, with the fallback rule.
+
+    ``d`` is already broadcastable to ``g``. Returns int32 indices, the last axis reduced.
+    """
+    ok = g <= d
+    any_ok = jnp.any(ok, axis=-1, keepdims=True)
+    if infeasible == "argmax":
+        fallback = jnp.ones_like(ok)
+    else:  # "min_cost": the lowest-cost actions, the tie among them goes to the highest Q below
+        fallback = g == jnp.min(g, axis=-1, keepdims=True)
+    cand = jnp.where(any_ok, ok, fallback)
+    return _index(_best(q, cand), last)
+
+
+def _take_last(x: jax.Array, idx: jax.Array) -> jax.Array:
+    """``x[..., idx]`` with ``idx`` shaped like ``x.shape[:-1]`` (or a prefix of the batch broadcast)."""
+    return jnp.take_along_axis(x, idx[..., None], axis=-1)[..., 0]
+
+
+# ----------------------------------------------------------------------------------------------------
+# Solvers (traced; inputs already validated).
+# ----------------------------------------------------------------------------------------------------
+
+
+def _stackelberg(qs, gs, ds, infeasible: str, last: bool) -> jax.Array:
+    """Backward induction over the levels (p14, generalised to k levels)."""
+    k = len(qs)
+    qs, gs = list(qs), list(gs)
+    plan = None  # [..., A1..A_m, k-m]: the continuation (a_{m+1}..a_k) for every prefix (a1..a_m)
+    for m in range(k - 1, -1, -1):  # static loop over the levels, last agent first
+        d = jnp.reshape(ds[m], jnp.shape(ds[m]) + (1,) * (m + 1))
+        choice = _select(qs[m], gs[m], d, infeasible, last)  # [..., A1..A_{m}] (agent m+1's reply)
+        for j in range(m):  # leaders above see the values at this reply
+            qs[j] = _take_last(qs[j], choice)
+            gs[j] = _take_last(gs[j], choice)
+        if plan is None:
+            plan = choice[..., None]
+        else:
+            rest = jnp.take_along_axis(plan, choice[..., None, None], axis=-2)[..., 0, :]
+            plan = jnp.concatenate([choice[..., None], rest], axis=-1)
+    return plan
+
+
+def _authors(qs, gs, ds, infeasible: str, last: bool) -> jax.Array:
+    """The authors' coded rule, top-down: each agent takes the first action of its best feasible completion."""
+    k = len(qs)
+    action_shape = qs[0].shape[-k:]
+    batch_shape = qs[0].shape[:-k]
+    prefix = jnp.zeros(batch_shape, jnp.int32)  # flat index of the actions chosen so far
+    actions = []
+    for i in range(k):
+        n_prefix = math.prod(action_shape[:i])
+        n_rest = math.prod(action_shape[i + 1 :])
+        n_joint = action_shape[i] * n_rest
+
+        def restrict(x, n_prefix=n_prefix, n_joint=n_joint):
+            # x[..., prefix, :] flattened: the joint completions (a_i, ..., a_k) after the chosen prefix.
+            x = jnp.reshape(x, batch_shape + (n_prefix, n_joint))
+            return jnp.take_along_axis(x, prefix[..., None, None], axis=-2)[..., 0, :]
+
+        d = jnp.reshape(ds[i], jnp.shape(ds[i]) + (1,))
+        flat = _select(restrict(qs[i]), restrict(gs[i]), d, infeasible, last)  # row-major loop order
+        a = (flat // n_rest).astype(jnp.int32)
+        actions.append(a)
+        prefix = prefix * action_shape[i] + a
+    return jnp.stack(actions, axis=-1)
+
+
+@partial(jax.jit, static_argnames=("infeasible", "leader_rule", "last"))
+def _solve(qs, gs, ds, *, infeasible: str, leader_rule: str, last: bool) -> jax.Array:
+    if leader_rule == "authors":
+        return _authors(qs, gs, ds, infeasible, last)
+    return _stackelberg(qs, gs, ds, infeasible, last)
+
+
+# ----------------------------------------------------------------------------------------------------
+# Public API.
+# ----------------------------------------------------------------------------------------------------
+
+
+def _as_list(name: str, values: Any) -> list:
+    if isinstance(values, (str, bytes)) or not hasattr(values, "__len__"):
+        raise ValueError(f"{name} must be a sequence with one entry per agent, got {type(values).__name__}")
+    return list(values)
+
+
+def _check_choice(name: str, value: Any, allowed: tuple) -> None:
+    if value not in allowed:
+        raise ValueError(f"unknown {name}={value!r}; allowed: {', '.join(repr(a) for a in allowed)}")
+
+
+def stackelberg_equilibrium(
+    q_values: Sequence[jax.Array],
+    cost_values: Sequence[jax.Array],
+    thresholds: Sequence[Any],
+    *,
+    infeasible: str = "min_cost",
+    leader_rule: str = "stackelberg",
+    tie_break: str | None = None,
+) -> jax.Array:
+    """Pure-strategy constrained Stackelberg equilibrium for a batch of states (paper eq. p14, Alg. 1).
+
+    Args:
+      q_values: one reward-value tensor per agent (leader first), each ``[..., A1, ..., Ak]`` over the
+        joint action; all ``2k`` tensors must have the same shape. ``k`` is ``len(q_values)``.
+      cost_values: one cost-value tensor per agent, same shape.
+      thresholds: ``k`` cost limits ``d_i``; scalars or arrays broadcastable to the batch shape ``[...]``.
+      infeasible: rule when no action at a level satisfies its constraint: ``"min_cost"`` (lowest cost,
+        ties to highest Q, then the index rule) or ``"argmax"`` (unconstrained argmax of Q, as the authors).
+      leader_rule: ``"stackelberg"`` (p14, backward induction) or ``"authors"`` (the coded max-max rule,
+        see the module docstring).
+      tie_break: ``"first"`` (lowest index among equal maxima) or ``"last"`` (highest). ``None`` means
+        ``"first"`` for ``"stackelberg"`` and ``"last"`` for ``"authors"`` (their ``>=`` loops).
+
+    Returns:
+      int32 ``[..., k]``: the equilibrium action of each agent. Jit- and vmap-compatible.
+
+    Raises:
+      ValueError: wrong number of cost tensors/thresholds, mismatched shapes, thresholds that do not
+        broadcast to the batch shape, or an unknown ``infeasible``/``leader_rule``/``tie_break``.
+    """
+    _check_choice("infeasible", infeasible, INFEASIBLE_RULES)
+    _check_choice("leader_rule", leader_rule, LEADER_RULES)
+    _check_choice("tie_break", tie_break, (None,) + TIE_BREAKS)
+    qs = _as_list("q_values", q_values)
+    gs = _as_list("cost_values", cost_values)
+    ds = _as_list("thresholds", thresholds)
+    k = len(qs)
+    if k == 0:
+        raise ValueError("q_values is empty; need one value tensor per agent (k >= 1)")
+    if len(gs) != k:
+        raise ValueError(f"cost_values has {len(gs)} entries but q_values has {k}; need one per agent")
+    if len(ds) != k:
+        raise ValueError(f"thresholds has {len(ds)} entries but q_values has {k}; need one per agent")
+    shape = tuple(jnp.shape(qs[0]))
+    if len(shape) < k:
+        raise ValueError(
+            f"q_values[0] has shape {shape} with fewer than k={k} axes; expected [..., A1, ..., A{k}]"
+        )
+    for name, arrays in (("q_values", qs), ("cost_values", gs)):
+        for i, x in enumerate(arrays):
+            if tuple(jnp.shape(x)) != shape:
+                raise ValueError(
+                    f"{name}[{i}] has shape {tuple(jnp.shape(x))}, expected {shape} (the shape of "
+                    "q_values[0]); every agent's Q and cost tensor must cover the same batch and joint-action grid"
+                )
+    if 0 in shape[len(shape) - k :]:
+        raise ValueError(f"every agent needs at least one action; action shape is {shape[len(shape) - k:]}")
+    batch_shape = shape[: len(shape) - k]
+    for i, d in enumerate(ds):
+        d_shape = tuple(jnp.shape(d))
+        try:
+            ok = np.broadcast_shapes(d_shape, batch_shape) == batch_shape
+        except ValueError:
+            ok = False
+        if not ok:
+            raise ValueError(
+                f"thresholds[{i}] has shape {d_shape}, which does not broadcast to the batch shape {batch_shape}"
+            )
+    if tie_break is None:
+        tie_break = "last" if leader_rule == "authors" else "first"
+    return _solve(
+        tuple(jnp.asarray(q) for q in qs),
+        tuple(jnp.asarray(g) for g in gs),
+        tuple(jnp.asarray(d) for d in ds),
+        infeasible=infeasible,
+        leader_rule=leader_rule,
+        last=tie_break == "last",
+    )
+
+
+def stackelberg_values(values: Any, equilibrium: jax.Array) -> Any:
+    """Gather value tensors at the equilibrium joint action, e.g. ``Q_i^targ(s', a1*, a2*)`` (Alg. 1 targets).
+
+    Args:
+      values: an array ``[..., A1, ..., Ak]`` or any pytree (list, tuple, dict) of such arrays.
+      equilibrium: int ``[..., k]``, as returned by :func:`stackelberg_equilibrium`.
+
+    Returns:
+      The same structure with each array reduced to ``[...]``.
+    """
+    eq_shape = tuple(jnp.shape(equilibrium))
+    if len(eq_shape) < 1:
+        raise ValueError("equilibrium must have shape [..., k]; got a scalar")
+    k = eq_shape[-1]
+    batch_shape = eq_shape[:-1]
+
+    def gather(x):
+        x = jnp.asarray(x)
+        if x.ndim < k or x.shape[: x.ndim - k] != batch_shape:
+            raise ValueError(
+                f"value tensor of shape {x.shape} does not match equilibrium of shape {eq_shape}; "
+                f"expected {batch_shape} + (A1, ..., A{k})"
+            )
+        action_shape = x.shape[x.ndim - k :]
+        flat = jnp.zeros(batch_shape, jnp.int32)
+        for i, n in enumerate(action_shape):  # row-major flat index of the joint action
+            flat = flat * n + equilibrium[..., i].astype(jnp.int32)
+        x = jnp.reshape(x, batch_shape + (math.prod(action_shape),))
+        return _take_last(x, flat)
+
+    return jax.tree.map(gather, values)
