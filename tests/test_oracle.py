@@ -472,3 +472,21 @@ def test_merge_obstacle_not_observed():
     """include_obstacles=False: the follower next to the obstacle still observes the leader (§1.7)."""
     r = _run("merge", IDLE, IDLE)
     np.testing.assert_allclose(r["obs"][9:, 1, 4:6], np.stack([r["x"][9:, 0], r["y"][9:, 0]], -1), atol=1e-4)
+
+
+def test_speed_guard_clip_persists_within_decision():
+    """highway-env detail a reimplementation must copy (kinematics.py ``clip_actions``).
+
+    The ±40 m/s guard overwrites the *stored* action dict of a plain Vehicle, and that dict is only
+    replaced at the next decision: once clipped, the acceleration stays at the clipped value for the
+    remaining substeps of the decision, even after the speed has dropped back below 40.
+    """
+    r = run_oracle("intersection", np.tile([0.7, -0.5], (20, 1)))  # leader: 3.5 m/s^2 from 10 m/s
+    F = r["frames"]
+    speed, acc = r["sub_speed"][:, 0], r["sub_acceleration"][:, 0]
+    k = _first(speed > 40)  # the substep that first crosses 40 m/s (with a = 3.5)
+    assert acc[k] == 3.5 and k // F == 8
+    assert acc[k + 1] == pytest.approx(40 - speed[k])  # clipped on the next substep ...
+    np.testing.assert_array_equal(acc[k + 1:(k // F + 1) * F], acc[k + 1])  # ... and kept to the decision's end
+    nxt = slice((k // F + 1) * F, (k // F + 2) * F)  # next decision: clipped once, then constant
+    assert (acc[nxt] == acc[nxt][0]).all() and acc[nxt][0] < 0 and speed[nxt][-1] < 40
