@@ -6,7 +6,8 @@ Paper equation (p14) and Algorithm 1 (CSQ): for the next state s' the target joi
     a1*    = argmax_{a1 : G1(a1, BR(a1)) <= d1} Q1(a1, BR(a1))         (leader, anticipating BR)
     a2*    = BR(a1*)
 
-and the TD targets (p15/p16, Algorithm 1) read Q_i^targ(s', a1*, a2*), G_i^targ(s', a1*, a2*).
+and the TD targets (the unlabelled update equations after p14, and Algorithm 1) read
+Q_i^targ(s', a1*, a2*) and G_i^targ(s', a1*, a2*): see :func:`stackelberg_values`.
 Here every value is a tensor ``[..., A1, A2]`` (critics evaluated on the whole joint-action grid), so the
 equilibrium is a masked reduction over the action axes: no loops over the batch or the actions.
 
@@ -16,7 +17,7 @@ a_{k-1} given that response, subject to its own constraint evaluated at that res
 
 Rules fixed here (the paper leaves them open):
 
-* Ties: among equal maxima the LOWEST index wins (``tie_break="first"``, i.e. ``jnp.argmax``). Follower
+* Ties: among equal maxima the LOWEST index wins (``tie_break="first"``, as ``jnp.argmax``). Follower
   ties are broken by index, not in the leader's favour (neither the strong nor the weak SSE convention).
   ``tie_break="last"`` makes the highest index win instead (the authors' ``>=`` loops).
 * No feasible action at a level (``infeasible``):
@@ -43,6 +44,7 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax import lax
 
 __all__ = ["stackelberg_equilibrium", "stackelberg_values"]
 
@@ -52,12 +54,12 @@ TIE_BREAKS = ("first", "last")
 
 
 # ----------------------------------------------------------------------------------------------------
-# Masked lexicographic selection along one axis (the only reduction used).
+# Masked lexicographic selection along one axis (the one reduction every level uses).
 # ----------------------------------------------------------------------------------------------------
 
 
 def _lowest(dtype) -> jax.Array:
-    """A value no larger than any value of ``dtype`` (used only where a mask already excludes it)."""
+    """A value no larger than any value of ``dtype``."""
     if jnp.issubdtype(dtype, jnp.inexact):
         return jnp.array(-jnp.inf, dtype)
     if jnp.issubdtype(dtype, jnp.bool_):
@@ -65,40 +67,50 @@ def _lowest(dtype) -> jax.Array:
     return jnp.array(jnp.iinfo(dtype).min, dtype)
 
 
-def _best(x: jax.Array, cand: jax.Array) -> jax.Array:
-    """Mask of the candidates (``cand``) that attain the maximum of ``x`` along the last axis.
-
-    Exact for any values, including -inf: the sentinel only fills non-candidates, which are masked out.
-    """
-    m = jnp.max(jnp.where(cand, x, _lowest(x.dtype)), axis=-1, keepdims=True)
-    return cand & (x == m)
-
-
-def _index(hits: jax.Array, last: bool) -> jax.Array:
-    """First (or last) True along the last axis, as int32."""
-    if last:
-        n = hits.shape[-1]
-        return (n - 1 - jnp.argmax(hits[..., ::-1], axis=-1)).astype(jnp.int32)
-    return jnp.argmax(hits, axis=-1).astype(jnp.int32)
+def _highest(dtype) -> jax.Array:
+    """A value no smaller than any value of ``dtype``."""
+    if jnp.issubdtype(dtype, jnp.inexact):
+        return jnp.array(jnp.inf, dtype)
+    if jnp.issubdtype(dtype, jnp.bool_):
+        return jnp.array(True)
+    return jnp.array(jnp.iinfo(dtype).max, dtype)
 
 
 def _select(q: jax.Array, g: jax.Array, d: jax.Array, infeasible: str, last: bool) -> jax.Array:
     """Constrained argmax of ``q`` along the last axis subject to ``g <= d``, with the fallback rule.
 
+    One pass (a variadic ``lax.reduce``) under the lexicographic order
+    feasible first > [if min_cost: lower cost, among infeasible ones] > higher q > lower (or higher) index.
+    If any action is feasible only feasible ones can win; otherwise the fallback order decides. Exact for
+    any values, including +-inf (no sentinel arithmetic); with NaNs the index is valid but unspecified.
     ``d`` is already broadcastable to ``g``. Returns int32 indices, the last axis reduced.
     """
+    axis = q.ndim - 1
     ok = g <= d
-    any_ok = jnp.any(ok, axis=-1, keepdims=True)
-    if infeasible == "argmax":
-        fallback = jnp.ones_like(ok)
-    else:  # "min_cost": the lowest-cost actions, the tie among them goes to the highest Q below
-        fallback = g == jnp.min(g, axis=-1, keepdims=True)
-    cand = jnp.where(any_ok, ok, fallback)
-    return _index(_best(q, cand), last)
+    idx = lax.broadcasted_iota(jnp.int32, q.shape, axis)
+    min_cost = infeasible == "min_cost"
+
+    def pick(a, b):
+        ok_a, g_a, q_a, i_a = a
+        ok_b, g_b, q_b, i_b = b
+        win = ok_a & ~ok_b
+        tie = ok_a == ok_b
+        if min_cost:  # costs rank only infeasible actions
+            win = win | (tie & ~ok_a & (g_a < g_b))
+            tie = tie & (ok_a | ~((g_a < g_b) | (g_b < g_a)))
+        win = win | (tie & (q_a > q_b))
+        tie = tie & ~((q_a > q_b) | (q_b > q_a))
+        win = win | (tie & ((i_a > i_b) if last else (i_a < i_b)))
+        return tuple(lax.select(win, x, y) for x, y in zip(a, b))
+
+    # The identity loses every comparison against a real action (at the latest on the index).
+    n = q.shape[axis]
+    init = (jnp.array(False), _highest(g.dtype), _lowest(q.dtype), jnp.array(-1 if last else n, jnp.int32))
+    return lax.reduce((ok, g, q, idx), init, pick, (axis,))[3]
 
 
 def _take_last(x: jax.Array, idx: jax.Array) -> jax.Array:
-    """``x[..., idx]`` with ``idx`` shaped like ``x.shape[:-1]`` (or a prefix of the batch broadcast)."""
+    """``x[..., idx]`` per leading index: ``idx`` has shape ``x.shape[:-1]``."""
     return jnp.take_along_axis(x, idx[..., None], axis=-1)[..., 0]
 
 
