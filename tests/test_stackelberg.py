@@ -235,6 +235,13 @@ def test_minus_inf_values_stay_feasible():
     assert int(stackelberg_equilibrium([q], [g], [0.5], tie_break="last")[0, 0]) == 2
 
 
+@pytest.mark.parametrize("tie_break", ["first", "last"])
+def test_nan_gives_a_valid_index(tie_break):
+    nan = np.full((3, 4, 4), np.nan, np.float32)
+    eq = np.asarray(stackelberg_equilibrium([nan, nan], [nan, nan], [0.0, 0.0], tie_break=tie_break))
+    assert ((eq >= 0) & (eq < 4)).all()
+
+
 # ----------------------------------------------------------------------------------------------------
 # Transformations and precision.
 # ----------------------------------------------------------------------------------------------------
