@@ -1,0 +1,213 @@
+"""Constrained Stackelberg Q-learning (CSQ, paper Algorithm 1, eqs. p10-p14) as pure JAX functions.
+
+Per agent i: a centralized reward critic ``Q_i(s, a1, a2)`` and cost critic ``G_i(s, a1, a2)``
+(:mod:`jaxsmarl.networks`, stacked as ``[n_agents, 2]`` = {Q, G}), target copies, one Adam over the stack (Adam is
+elementwise, so this equals one optimizer per critic as the authors had).
+
+* Acting (Alg. 1, "sample actions with epsilon-greedy according to (p14)"): level by level, agent i explores
+  with probability ``eps_i``, otherwise plays its part of the constrained Stackelberg equilibrium of the
+  sub-game that starts at its level, given the actions already executed above it. For two agents: the leader
+  plays a1* of (p14); the follower plays its constrained best response BR(a1) to the EXECUTED leader action
+  (which may be random), as in the authors' code.
+* Targets (Alg. 1): ``y_i = r_i + gamma (1 - t_i) Q_i^targ(s', a'),  g_i = c_i + gamma (1 - t_i) G_i^targ(s', a')``
+  with ``a'`` the equilibrium (p14) of the online critics at s' (p12/p13). ``t_i`` is agent i's OWN terminal
+  flag, so an agent that is done stops bootstrapping while the episode goes on for the other.
+* Loss: ``sum_i mean_B (Q_i(s, a) - y_i)^2 + (G_i(s, a) - g_i)^2``; soft target update
+  ``theta' <- (1 - tau) theta' + tau theta`` every ``target_update_every`` updates (authors: tau 0.01 / 10).
+
+Options reproducing the authors' code (original_code.md §4): ``leader_rule="authors"``, ``infeasible="argmax"``,
+``td_action_state="current"`` + ``td_action_noise=True`` (their target actions come from s with exploration),
+``bootstrap_on_truncation=False`` (their t_i includes the time limit).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import flax.struct
+import jax
+import jax.numpy as jnp
+import optax
+
+from jaxsmarl import networks
+from jaxsmarl.stackelberg import stackelberg_equilibrium
+
+__all__ = ["CSQConfig", "CSQState", "CSQAgent"]
+
+Q, G = 0, 1  # kind axis of the stacked critics
+
+
+@dataclasses.dataclass(frozen=True)
+class CSQConfig:
+    """Static CSQ hyper-parameters (defaults: the authors' merge CSQ run, original_code.md §8)."""
+
+    num_actions: tuple[int, ...] = (5, 5)
+    obs_dim: int = 8
+    hidden_sizes: tuple[int, ...] = (64, 64, 64)
+    init: str = "torch"  # "torch" (authors' PyTorch default init) or "lecun" (flax default)
+    lr: float = 1e-3
+    gamma: float = 0.95
+    tau: float = 0.01
+    target_update_every: int = 10
+    batch_size: int = 64
+    cost_threshold: tuple[float, ...] = (5.0, 5.0)  # d_i
+    eps_start: tuple[float, ...] = (0.1, 0.1)  # exploration probability per agent (leader: their noise_rate)
+    eps_min: tuple[float, ...] = (0.0, 0.0)
+    eps_decay: float = 5e-6  # per environment step
+    leader_rule: str = "stackelberg"  # or "authors"
+    infeasible: str = "min_cost"  # or "argmax"
+    tie_break: str | None = None  # None: solver default for the leader rule
+    td_action_state: str = "next"  # "next" (paper, p14 at s') or "current" (authors: s)
+    td_action_noise: bool = False  # authors: epsilon-greedy target actions
+    td_equilibrium_net: str = "online"  # critics used to solve p14 for the targets: "online" (p14) or "target"
+    bootstrap_on_truncation: bool = True  # False: the time limit also stops bootstrapping (authors)
+
+    @property
+    def n_agents(self) -> int:
+        return len(self.num_actions)
+
+    @property
+    def resolved_tie_break(self) -> str:
+        if self.tie_break is not None:
+            return self.tie_break
+        return "last" if self.leader_rule == "authors" else "first"
+
+
+@flax.struct.dataclass
+class CSQState:
+    params: Any  # stacked critics [n_agents, 2 (Q, G), ...]
+    target_params: Any
+    opt_state: Any
+    n_updates: jax.Array  # int32, gradient steps taken
+
+
+@flax.struct.dataclass
+class Transition:
+    obs: jax.Array  # [n_agents, obs_dim]
+    action: jax.Array  # int32 [n_agents]
+    reward: jax.Array  # [n_agents]
+    cost: jax.Array  # [n_agents]
+    next_obs: jax.Array  # [n_agents, obs_dim] (pre-reset observation at episode ends)
+    terminated: jax.Array  # bool [n_agents], per-agent terminal flag (not the time limit)
+    truncated: jax.Array  # bool [], time limit reached
+
+
+class CSQAgent:
+    """CSQ as a bundle of pure functions over :class:`CSQState` (jit/vmap them freely)."""
+
+    Transition = Transition
+
+    def __init__(self, config: CSQConfig):
+        self.config = config
+        self.module = networks.JointActionMLP(hidden=tuple(config.hidden_sizes), init_scheme=config.init)
+        self.optimizer = optax.adam(config.lr)
+
+    # ---------------------------------------------------------------------------------------------
+    def init(self, key: jax.Array) -> CSQState:
+        """Online critics, identical target copies (Alg. 1 initialisation), Adam state."""
+        c = self.config
+        params = networks.init_stacked(self.module, key, c.obs_dim, c.num_actions, shape=(c.n_agents, 2))
+        return CSQState(params=params, target_params=params, opt_state=self.optimizer.init(params),
+                        n_updates=jnp.int32(0))
+
+    def epsilon(self, env_step: jax.Array) -> jax.Array:
+        """Per-agent exploration probability after ``env_step`` steps: ``max(min, start - decay * step)``."""
+        c = self.config
+        start, low = jnp.asarray(c.eps_start, jnp.float32), jnp.asarray(c.eps_min, jnp.float32)
+        return jnp.maximum(low, start - c.eps_decay * jnp.asarray(env_step, jnp.float32))
+
+    def transition_example(self) -> Transition:
+        c = self.config
+        n = c.n_agents
+        return Transition(obs=jnp.zeros((n, c.obs_dim)), action=jnp.zeros((n,), jnp.int32), reward=jnp.zeros((n,)),
+                          cost=jnp.zeros((n,)), next_obs=jnp.zeros((n, c.obs_dim)),
+                          terminated=jnp.zeros((n,), bool), truncated=jnp.zeros((), bool))
+
+    # ---------------------------------------------------------------------------------------------
+    def values(self, params, obs: jax.Array) -> jax.Array:
+        """All critics over all joint actions: obs ``[..., n, D]`` -> ``[..., n, 2, A1, ..., An]``."""
+        return networks.joint_values(params, obs, self.config.num_actions)
+
+    def _solve(self, values: jax.Array, level: int = 0) -> jax.Array:
+        """p14 for the sub-game of agents ``level..n-1``: ``values`` ``[..., n, 2, A_level, ..., A_n]`` -> ``[..., n-level]``."""
+        c = self.config
+        n = c.n_agents
+        ax = values.ndim - 2 - (n - level)  # the agent axis
+        pick = lambda i, kind: values[(slice(None),) * ax + (i, kind)]
+        return stackelberg_equilibrium(
+            [pick(i, Q) for i in range(level, n)],
+            [pick(i, G) for i in range(level, n)],
+            list(c.cost_threshold[level:]),
+            infeasible=c.infeasible, leader_rule=c.leader_rule, tie_break=c.resolved_tie_break,
+        )
+
+    def equilibrium(self, values: jax.Array) -> jax.Array:
+        """Greedy joint action (p14) from ``values`` ``[..., n, 2, A1..An]`` -> int32 ``[..., n]``."""
+        return self._solve(values, 0)
+
+    def policy(self, values: jax.Array, key: jax.Array, eps: jax.Array) -> jax.Array:
+        """Epsilon-greedy Stackelberg acting: each level explores with prob. ``eps[i]``, else best-responds
+        (p14 on its sub-game) to the actions executed above it. ``eps = 0`` gives :meth:`equilibrium`."""
+        c = self.config
+        n = c.n_agents
+        batch = values.shape[: values.ndim - 2 - n]
+        keys = jax.random.split(key, 2 * n)
+        sub = values  # [..., n, 2, A_level..A_n]: restricted to the actions executed above `level`
+        actions = []
+        for level in range(n):
+            greedy = self._solve(sub, level)[..., 0]
+            explore = jax.random.uniform(keys[2 * level], batch) < eps[level]
+            rand = jax.random.randint(keys[2 * level + 1], batch, 0, c.num_actions[level])
+            a = jnp.where(explore, rand, greedy).astype(jnp.int32)
+            actions.append(a)
+            if level + 1 < n:  # fix this level's executed action in every agent's tensors
+                axis = len(batch) + 2
+                shape = sub.shape[:axis] + (1,) + sub.shape[axis + 1 :]
+                idx = jnp.broadcast_to(a.reshape(batch + (1,) * (sub.ndim - len(batch))), shape)
+                sub = jnp.take_along_axis(sub, idx, axis=axis).squeeze(axis)
+        return jnp.stack(actions, axis=-1)
+
+    def act(self, state: CSQState, obs: jax.Array, key: jax.Array, eps: jax.Array) -> jax.Array:
+        """Actions ``[..., n]`` for observations ``[..., n, D]`` (online critics)."""
+        return self.policy(self.values(state.params, obs), key, eps)
+
+    def greedy_act(self, state: CSQState, obs: jax.Array) -> jax.Array:
+        return self.equilibrium(self.values(state.params, obs))
+
+    # ---------------------------------------------------------------------------------------------
+    def td_targets(self, state: CSQState, batch: Transition, key: jax.Array, eps: jax.Array) -> jax.Array:
+        """``[B, n, 2]`` targets ``(r_i, c_i) + gamma (1 - t_i) (Q_i^targ, G_i^targ)(s', a')`` (Alg. 1)."""
+        c = self.config
+        eq_obs = batch.next_obs if c.td_action_state == "next" else batch.obs
+        eq_params = state.params if c.td_equilibrium_net == "online" else state.target_params
+        vals = self.values(eq_params, eq_obs)
+        if c.td_action_noise:
+            a_next = self.policy(vals, key, eps)
+        else:
+            a_next = self.equilibrium(vals)
+        boot = networks.values_at(state.target_params, batch.next_obs, a_next, c.num_actions)
+        done = batch.terminated
+        if not c.bootstrap_on_truncation:
+            done = done | batch.truncated[..., None]
+        rc = jnp.stack([batch.reward, batch.cost], axis=-1)  # [B, n, 2]
+        return rc + c.gamma * (1.0 - done.astype(jnp.float32))[..., None] * boot
+
+    def loss(self, params, batch: Transition, targets: jax.Array):
+        pred = networks.values_at(params, batch.obs, batch.action, self.config.num_actions)
+        per_net = jnp.mean((pred - jax.lax.stop_gradient(targets)) ** 2, axis=0)  # [n, 2]
+        return jnp.sum(per_net), (per_net, jnp.mean(pred, axis=0))
+
+    def update(self, state: CSQState, batch: Transition, key: jax.Array, eps: jax.Array):
+        """One gradient step on all critics + the authors' periodic soft target update. Returns (state, info)."""
+        c = self.config
+        targets = self.td_targets(state, batch, key, eps)
+        grads, (per_net, mean_pred) = jax.grad(self.loss, has_aux=True)(state.params, batch, targets)
+        updates, opt_state = self.optimizer.update(grads, state.opt_state, state.params)
+        params = optax.apply_updates(state.params, updates)
+        n = state.n_updates  # the authors soft-update when train_step > 0 and train_step % update_rate == 0
+        do_soft = (n > 0) & (n % c.target_update_every == 0)
+        soft = networks.soft_update(state.target_params, params, c.tau)
+        target_params = jax.tree.map(lambda s, t: jnp.where(do_soft, s, t), soft, state.target_params)
+        info = {"loss_q": per_net[:, Q], "loss_g": per_net[:, G], "q_mean": mean_pred[:, Q], "g_mean": mean_pred[:, G]}
+        return CSQState(params=params, target_params=target_params, opt_state=opt_state, n_updates=n + 1), info

@@ -1,0 +1,118 @@
+"""Command line: ``python -m train --scenario merge --algo csq --seeds 8``.
+
+Trains N seeds of CSQ (or its unconstrained variant SQ) in one compiled program, writes per-episode metrics,
+checkpoints and a summary into the run folder, then evaluates the greedy policies. ``--help`` lists everything.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+
+from train.config import ALGOS, DEFAULTS, HELP, SCENARIOS, load_config
+
+EPILOG = """\
+examples:
+  python -m train                                       # merge, CSQ, 8 seeds, the authors' 20k steps
+  python -m train --scenario roundabout --algo sq --seeds 4 --steps 5000
+  python -m train --out runs/m --resume                 # continue an interrupted run (bit-identical)
+  python -m train --eval-only runs/m --eval-episodes 20  # greedy evaluation of a saved run
+  python -m train --set leader_rule=authors --set infeasible=argmax   # the authors' action rule
+
+configuration: defaults <- train/configs/<scenario>_<algo>.json <- --config FILE <- options and --set.
+--set accepts any key below (value in JSON syntax; plain words are taken as strings):
+""" + "\n".join(f"  {k:<24} {HELP[k]} (default {json.dumps(DEFAULTS[k])})" for k in DEFAULTS)
+
+
+def parse_args(argv=None) -> argparse.Namespace:
+    p = argparse.ArgumentParser(prog="python -m train", description=__doc__.split("\n\n")[1],
+                                formatter_class=argparse.RawDescriptionHelpFormatter, epilog=EPILOG)
+    p.add_argument("--scenario", choices=list(SCENARIOS), default=None,
+                   help="driving scenario (default merge); csq/sq need a discrete one: merge or roundabout")
+    p.add_argument("--algo", choices=list(ALGOS), default=None,
+                   help="csq = constrained Stackelberg Q-learning (paper Alg. 1); sq = the same with d=100 "
+                        "(unconstrained Stackelberg Q-learning, the paper's discrete 'Bi-AC') (default csq)")
+    p.add_argument("--seeds", type=int, default=None, help="number of seeds trained in parallel (default 8)")
+    p.add_argument("--seed", type=int, default=None, help="base random seed (default 0)")
+    p.add_argument("--steps", type=int, default=None,
+                   help="environment steps per seed (default: the authors' budget, merge 20000, roundabout 10000)")
+    p.add_argument("--num-envs", type=int, default=None, help="parallel environments per seed (default 1)")
+    p.add_argument("--out", default=None, help="run folder (default runs/<scenario>_<algo>)")
+    p.add_argument("--config", default=None, help="JSON file replacing train/configs/<scenario>_<algo>.json")
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="override any configuration key (repeatable), e.g. --set lr=3e-4 --set cost_threshold=[2,2]")
+    p.add_argument("--chunk-steps", type=int, default=None,
+                   help="environment steps per compiled chunk between host logging (default 1000)")
+    p.add_argument("--checkpoint-every", type=int, default=None,
+                   help="environment steps between checkpoints, a multiple of --chunk-steps (default 5000)")
+    p.add_argument("--resume", action="store_true",
+                   help="continue the run in --out from its newest checkpoint (same configuration)")
+    p.add_argument("--overwrite", action="store_true", help="delete an existing run in --out and start over")
+    p.add_argument("--eval-episodes", type=int, default=None,
+                   help="greedy evaluation episodes per seed after training (default 10; 0 skips)")
+    p.add_argument("--eval-only", metavar="RUN_DIR", default=None,
+                   help="only evaluate the newest checkpoint of RUN_DIR greedily and print the result")
+    p.add_argument("--print-config", action="store_true", help="print the resolved configuration and exit")
+    p.add_argument("--quiet", action="store_true", help="no progress line")
+    return p.parse_args(argv)
+
+
+def _parse_set(items: list[str]) -> dict:
+    out = {}
+    for item in items:
+        if "=" not in item:
+            raise ValueError(f"--set expects KEY=VALUE, got {item!r}")
+        k, v = item.split("=", 1)
+        try:
+            out[k.strip()] = json.loads(v)
+        except json.JSONDecodeError:
+            out[k.strip()] = v
+    return out
+
+
+def build_config(args: argparse.Namespace) -> dict:
+    """The validated configuration for ``args`` (raises ValueError before anything is compiled)."""
+    overrides = _parse_set(args.set)
+    for opt, key in (("seeds", "num_seeds"), ("seed", "seed"), ("steps", "total_steps"), ("num_envs", "num_envs"),
+                     ("chunk_steps", "chunk_steps"), ("checkpoint_every", "checkpoint_every"),
+                     ("eval_episodes", "eval_episodes")):
+        v = getattr(args, opt)
+        if v is not None:
+            overrides[key] = v
+    if args.resume and args.out:
+        saved = os.path.join(args.out, "config.json")
+        if os.path.exists(saved):  # continue with the saved configuration; explicit options must agree
+            with open(saved) as f:
+                base = json.load(f)
+            base.update(overrides)
+            return load_config(args.scenario or base["scenario"], args.algo or base["algo"], base)
+    return load_config(args.scenario, args.algo, overrides, config_file=args.config)
+
+
+def main(argv=None) -> int:
+    args = parse_args(argv)
+    try:
+        if args.eval_only:
+            from train.run import evaluate_checkpoint
+
+            ev = evaluate_checkpoint(args.eval_only, episodes=args.eval_episodes)
+            print(json.dumps({"env_steps": ev["env_steps"], **ev["summary"]}, indent=2))
+            return 0
+        cfg = build_config(args)
+        if args.print_config:
+            print(json.dumps(cfg, indent=2))
+            return 0
+        out = args.out or os.path.join("runs", f"{cfg['scenario']}_{cfg['algo']}")
+        from train.run import run
+
+        run(cfg, out, resume=args.resume, overwrite=args.overwrite, verbose=not args.quiet)
+    except ValueError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

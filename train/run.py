@@ -1,0 +1,227 @@
+"""Host-side driver: compile once, run the chunks, log, checkpoint, resume, evaluate, write the run folder.
+
+Run folder layout (``--out``)::
+
+    config.json       the resolved configuration
+    episodes.csv      one row per finished training episode and seed (jaxsmarl.metrics.EPISODE_FIELDS)
+    summary.json      first/last-10% statistics with 95% bootstrap CIs across seeds, timing, evaluation
+    eval.csv          greedy evaluation episodes per seed (if eval_episodes > 0)
+    checkpoints/<env steps>/   orbax checkpoints of the whole training state (all seeds)
+
+The chunk loop is generic (any :class:`train.loop.Trainer`); resuming restores the newest checkpoint and
+feeds it to the same compiled chunk, so the result is bit-identical to an uninterrupted run.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+import time
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxsmarl import metrics
+from jaxsmarl.checkpoints import Checkpointer
+from train.loop import make_train, seed_keys
+
+__all__ = ["run", "evaluate_checkpoint"]
+
+
+def _print(msg: str, live: bool, end: str = "\n") -> None:
+    if live and sys.stdout.isatty():
+        sys.stdout.write("\r\033[K" + msg + ("" if end == "\r" else end))
+    else:
+        sys.stdout.write(msg + "\n")
+    sys.stdout.flush()
+
+
+def _check_out_dir(out: str, resume: bool, overwrite: bool) -> None:
+    ckpt = os.path.join(out, "checkpoints")
+    has_run = os.path.exists(os.path.join(out, "config.json")) or os.path.isdir(ckpt)
+    if resume:
+        if not os.path.isdir(ckpt):
+            raise ValueError(f"--resume: no checkpoints in {out}; start a new run without --resume")
+        return
+    if has_run and not overwrite:
+        raise ValueError(f"{out} already holds a run; pass --resume to continue it, --overwrite to replace it, "
+                         "or choose another --out")
+
+
+def _same_config(saved: dict, cfg: dict) -> None:
+    ignore = ("checkpoint_every", "eval_episodes", "eval_max_steps")  # do not change the training trajectory
+    diff = {k: (saved.get(k), cfg[k]) for k in cfg if k not in ignore and saved.get(k) != cfg[k]}
+    if diff:
+        raise ValueError(f"--resume with a different configuration than the saved run: {diff}; resume with the "
+                         "same options (the saved config.json is used when none are given) or start a new --out")
+
+
+def run(config: dict, out: str, *, resume: bool = False, overwrite: bool = False, env=None, verbose: bool = True,
+        max_chunks: int | None = None) -> dict:
+    """Train ``config["num_seeds"]`` seeds into ``out``. ``max_chunks`` stops early (for tests: an interruption).
+
+    Returns ``{"state": final state (all seeds), "log": EpisodeLog, "summary": dict}``.
+    """
+    out = os.path.abspath(out)
+    _check_out_dir(out, resume, overwrite)
+    if overwrite and not resume and os.path.isdir(out):
+        import shutil
+
+        shutil.rmtree(out)
+    os.makedirs(out, exist_ok=True)
+    cfg_path = os.path.join(out, "config.json")
+    if resume:
+        with open(cfg_path) as f:
+            _same_config(json.load(f), config)
+    metrics.write_json(cfg_path, config)
+
+    name = f"{config['scenario']}/{config['algo']} x{config['num_seeds']}"
+    S, E = config["num_seeds"], config["num_envs"]
+    t0 = time.perf_counter()
+    trainer = make_train(config, env)
+    keys = seed_keys(config)
+    init_fn = jax.jit(jax.vmap(trainer.init))
+    chunk_fn = jax.jit(jax.vmap(trainer.run_chunk, in_axes=(0, None)), donate_argnums=0)
+    tail_fn = (jax.jit(jax.vmap(trainer.run_tail, in_axes=(0, None)), donate_argnums=0)
+               if trainer.run_tail is not None else None)
+
+    ckpt = Checkpointer(os.path.join(out, "checkpoints"), max_to_keep=2)
+    csv_path = os.path.join(out, "episodes.csv")
+    state = init_fn(keys)
+    done_chunks = 0
+    log = metrics.EpisodeLog(S)
+    if resume:
+        state, meta = ckpt.restore(None, state)
+        done_chunks = int(meta["chunks_done"])
+        if os.path.exists(csv_path):
+            log = metrics.EpisodeLog.read_csv(csv_path, S)
+        log.truncate(int(meta["env_steps"]))  # episodes logged after the checkpoint are replayed
+        if verbose:
+            _print(f"{name}: resumed from {out}/checkpoints at {meta['env_steps']} env steps", False)
+    state = jax.device_put(state)
+    jax.block_until_ready(state)
+
+    compiled = {}
+    t_compile = time.perf_counter()
+    compiled["chunk"] = chunk_fn.lower(state, jnp.int32(0)).compile()
+    if tail_fn is not None:
+        compiled["tail"] = tail_fn.lower(state, jnp.int32(0)).compile()
+    compile_s = time.perf_counter() - t_compile
+    setup_s = time.perf_counter() - t0
+
+    total_steps = trainer.total_iters * E
+    ckpt_every_chunks = (config["checkpoint_every"] // config["chunk_steps"]) if config["checkpoint_every"] else 0
+    train_s = 0.0
+    steps_run = 0
+    last_meta: dict[str, Any] = {}
+    n_run = 0
+    for c in range(done_chunks, trainer.n_chunks):
+        if max_chunks is not None and n_run >= max_chunks:
+            break
+        start_iter = c * trainer.chunk_iters
+        fn = compiled["tail"] if (tail_fn is not None and c == trainer.n_chunks - 1) else compiled["chunk"]
+        t = time.perf_counter()
+        state, m = fn(state, jnp.int32(start_iter))
+        m = jax.device_get(m)
+        dt = time.perf_counter() - t
+        train_s += dt
+        n_iter = m["eps"].shape[1]
+        steps_run += n_iter * E
+        n_run += 1
+        new = log.add_steps(m["episode"], start_iter, E)
+        env_steps = (start_iter + n_iter) * E
+        last_meta = {"chunks_done": c + 1, "env_steps": env_steps}
+        is_last = c == trainer.n_chunks - 1
+        if is_last or (ckpt_every_chunks and (c + 1) % ckpt_every_chunks == 0) or (
+                max_chunks is not None and n_run >= max_chunks):
+            ckpt.save(env_steps, state, last_meta)
+            log.write_csv(csv_path)
+        if verbose:
+            recent = [r for r in log.rows if r["end_step"] > env_steps - config["chunk_steps"]]
+            sps = steps_run / max(train_s, 1e-9)
+            eta = (total_steps - env_steps) / max(sps, 1e-9)
+            line = metrics.progress_line(name, env_steps, total_steps, sps, eta, recent,
+                                         eps=np.asarray(m["eps"])[0, -1].tolist())
+            _print(line, True, end="\n" if is_last else "\r")
+    chunks_done = last_meta.get("chunks_done", done_chunks)
+    finished = chunks_done == trainer.n_chunks
+    log.write_csv(csv_path)
+
+    summary = {"config": config, "summary": metrics.summarize(log), "finished": finished,
+               "timing": {"setup_s": setup_s, "compile_s": compile_s, "train_s": train_s, "env_steps_run": steps_run,
+                          "env_steps_per_s_per_seed": steps_run / max(train_s, 1e-9),
+                          "env_steps_per_s_all_seeds": S * steps_run / max(train_s, 1e-9)}}
+    if finished and config["eval_episodes"] > 0:
+        ev = evaluate_state(trainer, state, config)
+        summary["eval"] = ev["summary"]
+        _write_eval_csv(os.path.join(out, "eval.csv"), ev["rows"])
+    metrics.write_json(os.path.join(out, "summary.json"), summary)
+    ckpt.close()
+    if verbose and finished:
+        _print(_final_report(name, summary), False)
+    return {"state": state, "log": log, "summary": summary}
+
+
+def evaluate_state(trainer, state, config: dict) -> dict:
+    """Greedy evaluation of every seed's agent: ``eval_episodes`` episodes each (vmapped over seeds)."""
+    key = jax.random.PRNGKey(config["seed"] + 10_000)
+    keys = jax.random.split(key, config["num_seeds"])
+    rec = jax.device_get(jax.jit(jax.vmap(trainer.evaluate))(state.agent, keys))  # [S, N]
+    rows = []
+    n = config["eval_episodes"]
+    for s in range(config["num_seeds"]):
+        for e in range(n):
+            row = {"seed": s, "episode": e, "finished": bool(rec["returned"][s, e])}
+            row.update({k: float(rec[k][s, e]) for k in metrics.EPISODE_FIELDS})
+            rows.append(row)
+    summ = {}
+    for k in metrics.EPISODE_FIELDS:
+        per_seed = [float(np.mean(rec[k][s, :n])) for s in range(config["num_seeds"])]
+        summ[k] = {"mean_ci": metrics.bootstrap_ci(per_seed), "per_seed": per_seed}
+    summ["unfinished_episodes"] = int(n * config["num_seeds"] - np.sum(rec["returned"][:, :n]))
+    return {"rows": rows, "summary": summ}
+
+
+def _write_eval_csv(path: str, rows: list[dict]) -> None:
+    import csv
+
+    if not rows:
+        return
+    with open(path + ".tmp", "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+    os.replace(path + ".tmp", path)
+
+
+def evaluate_checkpoint(out: str, episodes: int | None = None, step: int | None = None, env=None) -> dict:
+    """Greedy evaluation of the checkpoint in run folder ``out`` (newest, or ``step``)."""
+    with open(os.path.join(out, "config.json")) as f:
+        config = json.load(f)
+    if episodes is not None:
+        config["eval_episodes"] = int(episodes)
+    trainer = make_train(config, env)
+    template = jax.eval_shape(jax.vmap(trainer.init), seed_keys(config))
+    with Checkpointer(os.path.join(out, "checkpoints")) as ckpt:
+        state, meta = ckpt.restore(step, template)
+    ev = evaluate_state(trainer, jax.device_put(state), config)
+    ev["env_steps"] = meta.get("env_steps")
+    return ev
+
+
+def _final_report(name: str, summary: dict) -> str:
+    s, t = summary["summary"], summary["timing"]
+    f = lambda k: "{:.2f} [{:.2f}, {:.2f}]".format(*s[k]["last"])
+    lines = [f"{name}: {t['env_steps_run']} env steps/seed in {metrics.format_duration(t['train_s'])} "
+             f"({t['env_steps_per_s_all_seeds']:,.0f} steps/s over all seeds; compile {t['compile_s']:.1f}s)",
+             f"  last 10% of episodes (mean [95% CI] across seeds): return L {f('leader_return')} "
+             f"F {f('follower_return')} T {f('total_return')} | crash {f('crash')}"]
+    if "eval" in summary:
+        e = summary["eval"]
+        g = lambda k: "{:.2f} [{:.2f}, {:.2f}]".format(*e[k]["mean_ci"])
+        lines.append(f"  greedy evaluation: return L {g('leader_return')} F {g('follower_return')} | "
+                     f"crash {g('crash')}")
+    return "\n".join(lines)
