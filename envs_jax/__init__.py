@@ -9,11 +9,15 @@
 
 from envs_jax.env import DrivingEnv, EnvParams, EnvState
 from envs_jax.registry import make, register, scenarios
+from envs_jax.scenarios.intersection import Intersection
 from envs_jax.scenarios.merge import Merge
+from envs_jax.scenarios.racetrack import Racetrack
 from envs_jax.scenarios.roundabout import Roundabout
 from envs_jax.wrappers import AutoResetWrapper, rollout
 
 register("merge", Merge)
 register("roundabout", Roundabout)
+register("intersection", Intersection)
+register("racetrack", Racetrack)
 
 __all__ = ["make", "scenarios", "register", "DrivingEnv", "EnvParams", "EnvState", "AutoResetWrapper", "rollout"]

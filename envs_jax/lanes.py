@@ -108,11 +108,11 @@ class LaneTable:
         self.line_types = np.array([s.line_types for s in specs], dtype=np.int32)
         self.table = np.array([s.values for s in specs], dtype=np.float64)
         # Static partition used by the all-lane queries.
-        self.linear_rows = np.nonzero(self.kind != CIRCULAR)[0]
-        self.sine_rows_in_linear = np.nonzero(self.kind[self.linear_rows] == SINE)[0]
-        self.circular_rows = np.nonzero(self.kind == CIRCULAR)[0]
+        self.linear_rows = np.nonzero(self.kind != CIRCULAR)[0].astype(np.int32)
+        self.sine_rows_in_linear = np.nonzero(self.kind[self.linear_rows] == SINE)[0].astype(np.int32)
+        self.circular_rows = np.nonzero(self.kind == CIRCULAR)[0].astype(np.int32)
         order = np.concatenate([self.linear_rows, self.circular_rows])
-        self._unpermute = np.argsort(order)  # family-concatenated -> table order
+        self._unpermute = np.argsort(order).astype(np.int32)  # family-concatenated -> table order
 
     def np_col(self, name: str) -> np.ndarray:
         return self.table[:, _COL[name]]

@@ -15,6 +15,7 @@ over vehicles.
 from __future__ import annotations
 
 import jax.numpy as jnp
+import numpy as np
 
 from envs_jax import lanes as L
 
@@ -74,6 +75,15 @@ def bicycle_step(x, y, heading, speed, steering, acceleration, crashed, impact_x
     return x, y, heading, speed, crashed, steering, acceleration
 
 
+def below_half_pi(dtype) -> float:
+    """Largest value of ``dtype`` not above the true pi/2 (float64: pi/2 itself)."""
+    dtype = np.dtype(dtype)
+    half_pi = dtype.type(np.pi / 2)  # float64's pi/2 is already just below the true value
+    if float(half_pi) > np.pi / 2:
+        half_pi = np.nextafter(half_pi, dtype.type(0))
+    return float(half_pi)
+
+
 def speed_control(target_speed, speed):
     """``ControlledVehicle.speed_control``: a = KP_A (v* - v)."""
     return KP_A * (target_speed - speed)
@@ -88,6 +98,10 @@ def steering_control(lanes: L.LaneTable, target_lane, x, y, heading, speed):
     heading_ref = future_heading + jnp.clip(heading_command, -jnp.pi / 4, jnp.pi / 4)
     heading_rate_command = KP_HEADING * L.wrap_to_pi(heading_ref - heading)
     slip_angle = jnp.arcsin(jnp.clip(LENGTH / 2 / not_zero(speed) * heading_rate_command, -1, 1))
+    # float32 rounds arcsin(+-1) to a value just *beyond* pi/2, whose tan has the wrong sign and
+    # would steer full lock the wrong way; keep |slip| strictly below pi/2 (a no-op in float64).
+    limit = below_half_pi(slip_angle.dtype)
+    slip_angle = jnp.clip(slip_angle, -limit, limit)
     steering = jnp.arctan(2 * jnp.tan(slip_angle))
     return jnp.clip(steering, -MAX_STEERING_ANGLE, MAX_STEERING_ANGLE)
 
