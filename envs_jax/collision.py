@@ -10,16 +10,23 @@ first rectangle out of the second.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
+import jax
 import jax.numpy as jnp
 
 
-def rectangle(x, y, heading, length, width):
-    """The 4 corners ``[4, 2]`` of ``RoadObject.polygon()`` (same order, same arithmetic)."""
+def rectangle(x, y, heading, length, width, c=None, s=None):
+    """The 4 corners ``[4, 2]`` of ``RoadObject.polygon()`` (same order, same arithmetic).
+
+    ``c, s`` may pass a precomputed ``cos(heading), sin(heading)``.
+    """
     hl, hw = length / 2, width / 2
     local = jnp.array([[-1.0, -1.0], [-1.0, 1.0], [1.0, 1.0], [1.0, -1.0]])
     px = local[:, 0] * hl
     py = local[:, 1] * hw
-    c, s = jnp.cos(heading), jnp.sin(heading)
+    if c is None:
+        c, s = jnp.cos(heading), jnp.sin(heading)
     cx = c * px + (-s) * py + x
     cy = s * px + c * py + y
     return jnp.stack([cx, cy], axis=-1)
@@ -70,21 +77,33 @@ def polygons_intersecting(a, b, disp_a, disp_b):
     return intersecting, will_intersect, jnp.stack([tx, ty])
 
 
-def check(a_state, b_state, dt):
+class Shape(NamedTuple):
+    """A rectangle ready for collision checks: centre, speed, corners and velocity."""
+
+    x: jax.Array
+    y: jax.Array
+    speed: jax.Array
+    diagonal: jax.Array
+    corners: jax.Array  # [4, 2]
+    vx: jax.Array  # velocity (speed * direction, no slip angle)
+    vy: jax.Array
+
+    @staticmethod
+    def make(x, y, heading, speed, length, width):
+        c, s = jnp.cos(heading), jnp.sin(heading)
+        return Shape(x, y, speed, jnp.sqrt(length ** 2 + width ** 2),
+                     rectangle(x, y, heading, length, width, c, s), speed * c, speed * s)
+
+
+def check(a: Shape, b: Shape, dt):
     """``a._is_colliding(b, dt)``: prefilter on centre distance, then the separating-axis test.
 
-    ``*_state`` are tuples ``(x, y, heading, speed, length, width)``; ``a`` is
-    the object calling ``handle_collisions`` (its speed widens the prefilter).
+    ``a`` is the object calling ``handle_collisions``: its speed widens the prefilter.
+    Returns ``(intersecting, will_intersect, translation[2])``.
     """
-    ax, ay, ah, av, al, aw = a_state
-    bx, by, bh, bv, bl, bw = b_state
-    diag_a = jnp.sqrt(al ** 2 + aw ** 2)
-    diag_b = jnp.sqrt(bl ** 2 + bw ** 2)
-    dx, dy = bx - ax, by - ay
-    far = jnp.sqrt(dx * dx + dy * dy) > (diag_a + diag_b) / 2 + av * dt
-    poly_a = rectangle(ax, ay, ah, al, aw)
-    poly_b = rectangle(bx, by, bh, bl, bw)
-    disp_a = jnp.stack([av * jnp.cos(ah), av * jnp.sin(ah)]) * dt
-    disp_b = jnp.stack([bv * jnp.cos(bh), bv * jnp.sin(bh)]) * dt
-    inter, will, trans = polygons_intersecting(poly_a, poly_b, disp_a, disp_b)
+    dx, dy = b.x - a.x, b.y - a.y
+    far = jnp.sqrt(dx * dx + dy * dy) > (a.diagonal + b.diagonal) / 2 + a.speed * dt
+    disp_a = jnp.stack([a.vx, a.vy]) * dt
+    disp_b = jnp.stack([b.vx, b.vy]) * dt
+    inter, will, trans = polygons_intersecting(a.corners, b.corners, disp_a, disp_b)
     return inter & ~far, will & ~far, jnp.where(far, 0.0, trans)

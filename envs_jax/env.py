@@ -146,7 +146,7 @@ class DrivingEnv:
         y = jnp.asarray(init["y"])
         heading = jnp.asarray(init["heading"]) + jnp.zeros_like(x)
         speed = jnp.asarray(init["speed"]) + jnp.zeros_like(x)
-        lane, s, lat, on_road = self._locate(x, y, heading)
+        lane, s, lat, on_road, _ = self._locate(x, y, heading)
         if self.discrete:
             ts = jnp.asarray(params.target_speeds)
             target = init.get("target_speed")
@@ -202,19 +202,25 @@ class DrivingEnv:
         action = self.check_action(action)
         prev = state
         dt = 1.0 / self.simulation_frequency
+        # Local coordinates of each vehicle on every lane, reused by the controllers of the
+        # next frame (the vehicles do not move between the lane update and the controllers).
+        coords = self._locate(state.x, state.y, state.heading)[-1]
         if self.discrete:
-            state = self._decide_discrete(state, action, params)
+            state = self._decide_discrete(state, coords, action, params)
         else:
             acc, steer = jax.vmap(lambda a: V.continuous_action(a, self.scenario.longitudinal,
                                                                  self.scenario.lateral))(action)
             state = state.replace(acceleration=acc.astype(state.x.dtype), steering=steer.astype(state.x.dtype))
 
-        def frame(st, _):
-            st = self._frame(st, params, dt)
-            rec = (st.x, st.y, st.heading, st.speed, st.crashed, st.on_road, st.lane) if record else None
-            return st, rec
+        obstacles = self._obstacle_shapes(params, state.x.dtype)
 
-        state, trajectory = jax.lax.scan(frame, state, None, length=self.frames)
+        def frame(carry, _):
+            st, coords = carry
+            st, coords = self._frame(st, coords, obstacles, dt)
+            rec = (st.x, st.y, st.heading, st.speed, st.crashed, st.on_road, st.lane) if record else None
+            return (st, coords), rec
+
+        (state, _), trajectory = jax.lax.scan(frame, (state, coords), None, length=self.frames)
         state = state.replace(time=state.time + 1)
         obs = self.observe(state)
         reward, cost, terminated, state, info = self.scenario.outcome(prev, state, action, params)
@@ -231,75 +237,88 @@ class DrivingEnv:
 
     # ------------------------------------------------------------------------------------------
     def _locate(self, x, y, heading):
-        """Closest lane of each vehicle and its local coordinates and on-road flag."""
+        """Closest lane of each vehicle, its local coordinates and on-road flag, and the
+        vehicle's local coordinates ``(s[2, L], lat[2, L])`` on every lane."""
         cost, s_all, lat_all = L.distance_with_heading_all(self.road.lanes, x, y, heading)
         lane = jnp.argmin(cost, axis=-1).astype(jnp.int32)
         s = jnp.take_along_axis(s_all, lane[..., None], axis=-1)[..., 0]
         lat = jnp.take_along_axis(lat_all, lane[..., None], axis=-1)[..., 0]
         lengths = self.road.lanes.col("length")[lane]
         widths = self.road.lanes.col("width")[lane]
-        return lane, s, lat, L.on_lane_coords(lengths, widths, s, lat)
+        return lane, s, lat, L.on_lane_coords(lengths, widths, s, lat), (s_all, lat_all)
 
-    def _follow_road(self, st: EnvState):
-        """``ControlledVehicle.follow_road`` for both vehicles."""
+    def _follow_road(self, st: EnvState, coords):
+        """``ControlledVehicle.follow_road`` for both vehicles: past ``length - 2.5`` of the
+        target lane, switch to ``next_lane``."""
         road = self.road
+        lengths = road.lanes.col("length")
 
-        def one(tl, rr, ri, rl, rp, x, y):
-            end = L.after_end(road.lanes, tl, x, y)
-            nl, nrp = road.next_lane(tl, rr, ri, rl, rp, x, y)
+        def one(tl, rr, ri, rl, rp, s_all):
+            s = s_all[tl]
+            end = s > lengths[tl] - L.VEHICLE_LENGTH / 2
+            nl, nrp = road.next_lane(tl, s, rr, ri, rl, rp)
             return jnp.where(end, nl, tl), jnp.where(end, nrp, rp)
 
         tl, rp = jax.vmap(one)(st.target_lane, st.route_roads, st.route_ids, st.route_len,
-                               st.route_ptr, st.x, st.y)
+                               st.route_ptr, coords[0])
         return st.replace(target_lane=tl, route_ptr=rp)
 
-    def _decide_discrete(self, st: EnvState, action, params):
+    def _decide_discrete(self, st: EnvState, coords, action, params):
         """First frame of a decision: ``follow_road`` then the meta-action (``MDPVehicle.act(a)``)."""
-        st = self._follow_road(st)
+        st = self._follow_road(st, coords)
         ts = jnp.asarray(params.target_speeds)
-        tl, si, tsp = jax.vmap(lambda a, tl, si, x, y, v: V.meta_action(self.road, a, tl, si, x, y, v, ts))(
-            action, st.target_lane, st.speed_index, st.x, st.y, st.speed)
+        tl, si, tsp = jax.vmap(lambda a, tl, si, s_all, lat_all, v: V.meta_action(
+            self.road, a, tl, si, s_all, lat_all, v, ts))(
+            action, st.target_lane, st.speed_index, coords[0], coords[1], st.speed)
         return st.replace(target_lane=tl, speed_index=si, target_speed=tsp.astype(st.x.dtype))
 
-    def _frame(self, st: EnvState, params, dt):
+    def _frame(self, st: EnvState, coords, obstacles, dt):
         """One simulation frame: controllers (``road.act``), kinematics (``road.step``), collisions."""
         if self.discrete:
-            st = self._follow_road(st)
-            steering = jax.vmap(lambda tl, x, y, h, v: V.steering_control(self.road.lanes, tl, x, y, h, v))(
-                st.target_lane, st.x, st.y, st.heading, st.speed)
+            st = self._follow_road(st, coords)
+            s_t = jnp.take_along_axis(coords[0], st.target_lane[:, None], axis=-1)[:, 0]
+            lat_t = jnp.take_along_axis(coords[1], st.target_lane[:, None], axis=-1)[:, 0]
+            steering = jax.vmap(lambda tl, s, lat, h, v: V.steering_control(self.road.lanes, tl, s, lat, h, v))(
+                st.target_lane, s_t, lat_t, st.heading, st.speed)
             acceleration = V.speed_control(st.target_speed, st.speed)
             st = st.replace(steering=steering, acceleration=acceleration)
         x, y, h, v, crashed, steering, acceleration = V.bicycle_step(
             st.x, st.y, st.heading, st.speed, st.steering, st.acceleration, st.crashed,
             st.impact[:, 0], st.impact[:, 1], st.has_impact, dt)
-        lane, s, lat, on_road = self._locate(x, y, h)
-        impact, has_impact, crashed = self._collide(x, y, h, v, crashed, params, dt)
-        return st.replace(x=x, y=y, heading=h, speed=v, crashed=crashed, steering=steering,
-                          acceleration=acceleration, lane=lane, lane_s=s, lane_lat=lat, on_road=on_road,
-                          impact=impact, has_impact=has_impact)
+        lane, s, lat, on_road, coords = self._locate(x, y, h)
+        impact, has_impact, crashed = self._collide(x, y, h, v, crashed, obstacles, dt)
+        st = st.replace(x=x, y=y, heading=h, speed=v, crashed=crashed, steering=steering,
+                        acceleration=acceleration, lane=lane, lane_s=s, lane_lat=lat, on_road=on_road,
+                        impact=impact, has_impact=has_impact)
+        return st, coords
 
-    def _collide(self, x, y, h, v, crashed, params, dt):
+    @staticmethod
+    def _obstacle_shapes(params, dtype):
+        """Static obstacles as collision shapes (corners computed once per step)."""
+        obstacles = params.obstacles
+        if obstacles is None or int(np.shape(obstacles)[0]) == 0:
+            return []
+        obstacles = jnp.asarray(obstacles, dtype)
+        return [collision.Shape.make(o[0], o[1], o[2], 0.0, o[3], o[4]) for o in obstacles]
+
+    def _collide(self, x, y, h, v, crashed, obstacles, dt):
         """``Road.step`` collision loop: vehicle pairs in road order, then each vehicle vs obstacles."""
         order = self.scenario.road_order
         impact = [jnp.zeros(2, x.dtype) for _ in range(NUM_AGENTS)]
         has = [jnp.zeros((), bool) for _ in range(NUM_AGENTS)]
         crash = [crashed[i] for i in range(NUM_AGENTS)]
-        veh = lambda i: (x[i], y[i], h[i], v[i], V.LENGTH, V.WIDTH)
-        obstacles = params.obstacles
-        n_obs = 0 if obstacles is None else int(np.shape(obstacles)[0])
-        obstacles = None if n_obs == 0 else jnp.asarray(obstacles, x.dtype)
+        shapes = [collision.Shape.make(x[i], y[i], h[i], v[i], V.LENGTH, V.WIDTH) for i in range(NUM_AGENTS)]
         for k, i in enumerate(order):
             for j in order[k + 1:]:
-                inter, will, t = collision.check(veh(i), veh(j), dt)
+                inter, will, t = collision.check(shapes[i], shapes[j], dt)
                 impact[i] = jnp.where(will, t / 2, impact[i])
                 impact[j] = jnp.where(will, -t / 2, impact[j])
                 has[i] = has[i] | will
                 has[j] = has[j] | will
                 crash[i] = crash[i] | inter
                 crash[j] = crash[j] | inter
-            for o in range(n_obs):
-                ob = obstacles[o]
-                inter, will, t = collision.check(veh(i), (ob[0], ob[1], ob[2], 0.0, ob[3], ob[4]), dt)
+            for ob in obstacles:
+                inter, will, t = collision.check(shapes[i], ob, dt)
                 impact[i] = jnp.where(will, t, impact[i])
                 has[i] = has[i] | will
                 crash[i] = crash[i] | inter

@@ -111,6 +111,10 @@ class LaneTable:
         self.linear_rows = np.nonzero(self.kind != CIRCULAR)[0].astype(np.int32)
         self.sine_rows_in_linear = np.nonzero(self.kind[self.linear_rows] == SINE)[0].astype(np.int32)
         self.circular_rows = np.nonzero(self.kind == CIRCULAR)[0].astype(np.int32)
+        centers = self.table[self.circular_rows][:, [_COL["center_x"], _COL["center_y"]]]
+        self.circle_centers, self.circle_of_row = (np.unique(centers, axis=0, return_inverse=True)
+                                                   if len(centers) else (np.zeros((0, 2)), np.zeros(0, np.int64)))
+        self.circle_of_row = self.circle_of_row.reshape(-1).astype(np.int32)
         order = np.concatenate([self.linear_rows, self.circular_rows])
         self._unpermute = np.argsort(order).astype(np.int32)  # family-concatenated -> table order
 
@@ -136,8 +140,13 @@ class LaneTable:
 
 
 def wrap_to_pi(x):
-    """``utils.wrap_to_pi``: ((x + pi) mod 2 pi) - pi."""
-    return jnp.mod(x + jnp.pi, 2 * jnp.pi) - jnp.pi
+    """``utils.wrap_to_pi``: ((x + pi) mod 2 pi) - pi.
+
+    Written with ``floor`` rather than ``mod``: XLA lowers ``mod`` to a scalar
+    ``fmod`` call on CPU (about 30x slower), and the two agree to round-off.
+    """
+    y = x + jnp.pi
+    return y - 2 * jnp.pi * jnp.floor(y / (2 * jnp.pi)) - jnp.pi
 
 
 def _linear_local(r, px, py):
@@ -247,7 +256,7 @@ def distance(lanes: LaneTable, idx, px, py):
 # All lanes at once.
 
 
-def local_coordinates_all(lanes: LaneTable, px, py):
+def local_coordinates_all(lanes: LaneTable, px, py, with_heading: bool = True):
     """(s, lat, heading_at(s)) of a point on every lane, shape ``[..., L]`` in table order.
 
     Each lane family is evaluated only on its own rows; a static permutation puts
@@ -266,15 +275,24 @@ def local_coordinates_all(lanes: LaneTable, px, py):
             rs = {name: v[sub] for name, v in r.items()}
             s_sin = s[..., sub]
             lat = lat.at[..., sub].add(-_sine_offset(rs, s_sin))
-            h = h.at[..., sub].add(jnp.arctan(rs["amplitude"] * rs["pulsation"]
-                                              * jnp.cos(rs["pulsation"] * s_sin + rs["phase"])))
+            if with_heading:
+                h = h.at[..., sub].add(jnp.arctan(rs["amplitude"] * rs["pulsation"]
+                                                  * jnp.cos(rs["pulsation"] * s_sin + rs["phase"])))
         parts_s.append(s)
         parts_lat.append(lat)
         parts_h.append(h)
     if lanes.circular_rows.size:
         rows = lanes.circular_rows
         r = {name: lanes.col(name, rows) for name in _FIELDS}
-        s, lat = _circular_local(r, px, py)
+        # atan2 and the radius once per distinct centre (all ring lanes share one).
+        centers = jnp.asarray(lanes.circle_centers)
+        dx = px - centers[:, 0]
+        dy = py - centers[:, 1]
+        phi_c = jnp.arctan2(dy, dx)[..., lanes.circle_of_row]
+        radius_c = jnp.sqrt(dx * dx + dy * dy)[..., lanes.circle_of_row]
+        phi = r["start_phase"] + wrap_to_pi(phi_c - r["start_phase"])
+        s = r["cdir"] * (phi - r["start_phase"]) * r["radius"]
+        lat = r["cdir"] * (r["radius"] - radius_c)
         h = r["cdir"] * s / r["radius"] + r["start_phase"] + jnp.pi / 2 * r["cdir"]
         parts_s.append(s)
         parts_lat.append(lat)

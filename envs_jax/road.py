@@ -106,14 +106,15 @@ class Road:
         cost, _, _ = L.distance_with_heading_all(self.lanes, px, py, heading)
         return jnp.argmin(cost, axis=-1).astype(jnp.int32)
 
-    def next_lane(self, lane, route_roads, route_ids, route_len, route_ptr, px, py):
+    def next_lane(self, lane, s, route_roads, route_ids, route_len, route_ptr):
         """``RoadNetwork.next_lane``: the lane to follow once ``lane`` is finished.
 
-        With a route whose next step starts where the current road ends, follow
-        it; otherwise pick, among the successor roads, the one whose candidate
-        lane is closest to the projection of the position on the current lane.
-        The candidate lane keeps the lane id when both roads have as many lanes,
-        else it is the closest lane of the next road. Returns ``(lane, route_ptr)``.
+        ``s`` is the vehicle's longitudinal coordinate on ``lane``. With a route
+        whose next step starts where the current road ends, follow it; otherwise
+        pick, among the successor roads, the one whose candidate lane is closest
+        to the projection of the position on the current lane's centre line. The
+        candidate keeps the lane id when both roads have as many lanes, else it
+        is the closest lane of the next road. Returns ``(lane, route_ptr)``.
         """
         road_lanes = jnp.asarray(self.road_lanes)
         road_num = jnp.asarray(self.road_num_lanes)
@@ -134,24 +135,22 @@ class Road:
         follow = has_route & (from_id[jnp.maximum(route_road, 0)] == to_id[lane_road])
         route_lane_id = route_ids[head]
 
-        # Projection of the position on the current lane's centre line.
-        s, _ = L.local_coordinates(self.lanes, lane, px, py)
+        # Distances of every lane to the projection of the position on the current centre line.
         qx, qy = L.position(self.lanes, lane, s, jnp.zeros_like(s))
+        q_s, q_lat, _ = L.local_coordinates_all(self.lanes, qx, qy, with_heading=False)
+        dist = L.distance_from_coords(self.lanes.col("length"), q_s, q_lat)  # [L]
 
         # Candidates: every successor road (padded), each with its chosen lane and distance.
         succ = road_next[lane_road]  # [S]
-        valid = succ >= 0
-        cand_roads = jnp.where(follow, jnp.where(jnp.arange(succ.shape[-1]) == 0, route_road, -1), succ)
-        valid = jnp.where(follow, jnp.arange(succ.shape[-1]) == 0, valid)
-        cand_roads_safe = jnp.maximum(cand_roads, 0)
-        n_next = road_num[cand_roads_safe]  # [S]
+        slot = jnp.arange(succ.shape[-1])
+        cand_roads = jnp.where(follow, jnp.where(slot == 0, route_road, -1), succ)
+        valid = cand_roads >= 0
+        cand_roads = jnp.maximum(cand_roads, 0)
+        n_next = road_num[cand_roads]  # [S]
         same_count = n_next == road_num[lane_road]
-        # Lane ids of each candidate road: [S, M]
-        ids = jnp.arange(road_lanes.shape[-1])
-        lanes_of = road_lanes[cand_roads_safe]  # [S, M]
-        lane_exists = ids[None, :] < n_next[:, None]
-        d_all = L.distance(self.lanes, jnp.maximum(lanes_of, 0), qx, qy)
-        d_all = jnp.where(lane_exists, d_all, jnp.inf)
+        lanes_of = road_lanes[cand_roads]  # [S, M]
+        lane_exists = jnp.arange(road_lanes.shape[-1])[None, :] < n_next[:, None]
+        d_all = jnp.where(lane_exists, dist[jnp.maximum(lanes_of, 0)], jnp.inf)
         closest_id = jnp.argmin(d_all, axis=-1)
         keep_id = jnp.where(follow & (route_lane_id >= 0), route_lane_id, lane_id)
         keep_id = jnp.minimum(keep_id, n_next - 1)
@@ -160,6 +159,5 @@ class Road:
         chosen_d = jnp.take_along_axis(d_all, chosen_id[:, None], axis=-1)[:, 0]
         chosen_d = jnp.where(valid, chosen_d, jnp.inf)
         best = jnp.argmin(chosen_d)
-        any_next = jnp.any(valid)
-        new_lane = jnp.where(any_next, chosen_lane[best], lane)
+        new_lane = jnp.where(jnp.any(valid), chosen_lane[best], lane)
         return new_lane.astype(jnp.int32), route_ptr

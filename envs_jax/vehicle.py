@@ -89,9 +89,11 @@ def speed_control(target_speed, speed):
     return KP_A * (target_speed - speed)
 
 
-def steering_control(lanes: L.LaneTable, target_lane, x, y, heading, speed):
-    """``ControlledVehicle.steering_control``: lateral -> heading -> heading-rate -> steering cascade."""
-    s, lat = L.local_coordinates(lanes, target_lane, x, y)
+def steering_control(lanes: L.LaneTable, target_lane, s, lat, heading, speed):
+    """``ControlledVehicle.steering_control``: lateral -> heading -> heading-rate -> steering cascade.
+
+    ``s, lat`` are the vehicle's local coordinates on ``target_lane``.
+    """
     future_heading = L.heading_at(lanes, target_lane, s + speed * TAU_PURSUIT)
     lateral_speed_command = -KP_LATERAL * lat
     heading_command = jnp.arcsin(jnp.clip(lateral_speed_command / not_zero(speed), -1, 1))
@@ -113,12 +115,13 @@ def speed_to_index(speed, target_speeds):
     return jnp.clip(jnp.round(x * (n - 1)), 0, n - 1).astype(jnp.int32)
 
 
-def meta_action(road, action, target_lane, speed_index, x, y, speed, target_speeds):
+def meta_action(road, action, target_lane, speed_index, s_all, lat_all, speed, target_speeds):
     """Apply one discrete meta-action (``MDPVehicle.act``) to the target lane and speed index.
 
     FASTER/SLOWER re-index from the *current* speed (+-1, clipped). LANE_LEFT/RIGHT
     move the target lane id by -+1 on the same road (clipped) and are accepted
-    only if the new lane ``is_reachable_from`` the position. Returns
+    only if the new lane ``is_reachable_from`` the position (``s_all, lat_all``:
+    the position's local coordinates on every lane). Returns
     ``(target_lane, speed_index, target_speed)``.
     """
     n = target_speeds.shape[-1]
@@ -134,7 +137,11 @@ def meta_action(road, action, target_lane, speed_index, x, y, speed, target_spee
     delta = jnp.where(action == LANE_RIGHT, 1, jnp.where(action == LANE_LEFT, -1, 0))
     cand_id = jnp.clip(lane_id + delta, 0, n_lanes - 1)
     candidate = jnp.asarray(road.road_lanes)[lane_road, cand_id]
-    reachable = L.is_reachable_from(road.lanes, candidate, x, y)
+    lane_width = road.lanes.col("width")[candidate]
+    lane_length = road.lanes.col("length")[candidate]
+    cs, clat = s_all[candidate], lat_all[candidate]
+    reachable = ((jnp.abs(clat) <= 2 * lane_width) & (0 <= cs) & (cs < lane_length + L.VEHICLE_LENGTH)
+                 & ~jnp.asarray(road.lanes.forbidden)[candidate])
     changes_lane = (action == LANE_LEFT) | (action == LANE_RIGHT)
     target_lane = jnp.where(changes_lane & reachable, candidate, target_lane)
     target_speed = target_speeds[speed_index]

@@ -102,8 +102,8 @@ class Intersection(ContinuousScenario, Scenario):
         self._set_action_mode(action_mode)
         self.road = build_road()
         # Approach lanes (leader: south o0->ir0, follower: west o1->ir1) and exit lanes (il2->o2, il3->o3).
-        self.start_lanes = np.array([self.road.lane("o0", "ir0", 0), self.road.lane("o1", "ir1", 0)])
-        self.goal_lanes = np.array([self.road.lane("il2", "o2", 0), self.road.lane("il3", "o3", 0)])
+        self.start_lanes = np.array([self.road.lane("o0", "ir0", 0), self.road.lane("o1", "ir1", 0)], np.int32)
+        self.goal_lanes = np.array([self.road.lane("il2", "o2", 0), self.road.lane("il3", "o3", 0)], np.int32)
 
     def default_params(self) -> IntersectionParams:
         table = self.road.lanes

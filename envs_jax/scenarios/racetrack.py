@@ -102,7 +102,7 @@ class Racetrack(ContinuousScenario, Scenario):
     def __init__(self, action_mode: str | None = None):
         self._set_action_mode(action_mode)
         self.road = build_road()
-        self.start_lanes = np.array([self.road.lane("a", "b", 0), self.road.lane("a", "b", 1)])
+        self.start_lanes = np.array([self.road.lane("a", "b", 0), self.road.lane("a", "b", 1)], np.int32)
 
     def default_params(self) -> RacetrackParams:
         table = self.road.lanes
