@@ -93,6 +93,9 @@ def build_config(args: argparse.Namespace) -> dict:
 
 def main(argv=None) -> int:
     args = parse_args(argv)
+    from train.run import use_all_cpu_cores
+
+    use_all_cpu_cores()  # seeds are split over the cores (a no-op once JAX has started, e.g. inside tests)
     try:
         if args.eval_only:
             from train.run import evaluate_checkpoint

@@ -15,6 +15,7 @@ feeds it to the same compiled chunk, so the result is bit-identical to an uninte
 from __future__ import annotations
 
 import json
+import math
 import os
 import sys
 import time
@@ -23,12 +24,32 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from jaxsmarl import metrics
 from jaxsmarl.checkpoints import Checkpointer
 from train.loop import make_train, seed_keys
 
-__all__ = ["run", "evaluate_checkpoint"]
+__all__ = ["run", "evaluate_checkpoint", "use_all_cpu_cores", "seed_sharding"]
+
+
+def use_all_cpu_cores() -> bool:
+    """Expose every CPU core as its own JAX device so that seeds run on all cores in parallel (XLA:CPU runs the
+    critics' small matrix products on one thread). Must run before JAX executes anything; returns success."""
+    try:
+        jax.config.update("jax_num_cpu_devices", max(1, os.cpu_count() or 1))
+        return True
+    except RuntimeError:
+        return False
+
+
+def seed_sharding(num_seeds: int):
+    """Split the seed axis over the local devices (as many as divide ``num_seeds``); None for one device."""
+    devices = jax.local_devices()
+    n = math.gcd(num_seeds, len(devices))
+    if n <= 1:
+        return None
+    return NamedSharding(Mesh(np.array(devices[:n]), ("seeds",)), PartitionSpec("seeds"))
 
 
 def _print(msg: str, live: bool, end: str = "\n") -> None:
@@ -37,6 +58,40 @@ def _print(msg: str, live: bool, end: str = "\n") -> None:
     else:
         sys.stdout.write(msg + "\n")
     sys.stdout.flush()
+
+
+_PROGRAMS: dict[str, dict] = {}
+
+
+def _program(config: dict, env=None) -> dict:
+    """The trainer and its jitted functions for ``config``; memoised per process (when ``env`` is None) so that
+    running one configuration again (resume, evaluation, tests) reuses the compiled program."""
+    key = json.dumps({k: v for k, v in config.items() if k != "checkpoint_every"}, sort_keys=True)
+    if env is None and key in _PROGRAMS:
+        return _PROGRAMS[key]
+    trainer = make_train(config, env)
+    sharding = seed_sharding(config["num_seeds"])
+    outs = None if sharding is None else (sharding, sharding)
+    prog = {
+        "trainer": trainer, "sharding": sharding, "compiled": {},
+        "init": jax.jit(jax.vmap(trainer.init), out_shardings=sharding),
+        "chunk": jax.jit(jax.vmap(trainer.run_chunk, in_axes=(0, None)), donate_argnums=0, out_shardings=outs),
+        "tail": (jax.jit(jax.vmap(trainer.run_tail, in_axes=(0, None)), donate_argnums=0, out_shardings=outs)
+                 if trainer.run_tail is not None else None),
+        "evaluate": jax.jit(jax.vmap(trainer.evaluate)),
+    }
+    if env is None:
+        _PROGRAMS[key] = prog
+    return prog
+
+
+def _compiled_chunks(prog: dict, state) -> dict:
+    """Ahead-of-time compiled chunk (and tail chunk) for states shaped and placed like ``state``."""
+    if not prog["compiled"]:
+        prog["compiled"]["chunk"] = prog["chunk"].lower(state, jnp.int32(0)).compile()
+        if prog["tail"] is not None:
+            prog["compiled"]["tail"] = prog["tail"].lower(state, jnp.int32(0)).compile()
+    return prog["compiled"]
 
 
 def _check_out_dir(out: str, resume: bool, overwrite: bool) -> None:
@@ -81,16 +136,12 @@ def run(config: dict, out: str, *, resume: bool = False, overwrite: bool = False
     name = f"{config['scenario']}/{config['algo']} x{config['num_seeds']}"
     S, E = config["num_seeds"], config["num_envs"]
     t0 = time.perf_counter()
-    trainer = make_train(config, env)
-    keys = seed_keys(config)
-    init_fn = jax.jit(jax.vmap(trainer.init))
-    chunk_fn = jax.jit(jax.vmap(trainer.run_chunk, in_axes=(0, None)), donate_argnums=0)
-    tail_fn = (jax.jit(jax.vmap(trainer.run_tail, in_axes=(0, None)), donate_argnums=0)
-               if trainer.run_tail is not None else None)
+    prog = _program(config, env)
+    trainer, sharding = prog["trainer"], prog["sharding"]
 
     ckpt = Checkpointer(os.path.join(out, "checkpoints"), max_to_keep=2)
     csv_path = os.path.join(out, "episodes.csv")
-    state = init_fn(keys)
+    state = prog["init"](seed_keys(config))
     done_chunks = 0
     log = metrics.EpisodeLog(S)
     if resume:
@@ -101,14 +152,11 @@ def run(config: dict, out: str, *, resume: bool = False, overwrite: bool = False
         log.truncate(int(meta["env_steps"]))  # episodes logged after the checkpoint are replayed
         if verbose:
             _print(f"{name}: resumed from {out}/checkpoints at {meta['env_steps']} env steps", False)
-    state = jax.device_put(state)
+    state = jax.device_put(state, sharding)
     jax.block_until_ready(state)
 
-    compiled = {}
     t_compile = time.perf_counter()
-    compiled["chunk"] = chunk_fn.lower(state, jnp.int32(0)).compile()
-    if tail_fn is not None:
-        compiled["tail"] = tail_fn.lower(state, jnp.int32(0)).compile()
+    compiled = _compiled_chunks(prog, state)
     compile_s = time.perf_counter() - t_compile
     setup_s = time.perf_counter() - t0
 
@@ -122,7 +170,7 @@ def run(config: dict, out: str, *, resume: bool = False, overwrite: bool = False
         if max_chunks is not None and n_run >= max_chunks:
             break
         start_iter = c * trainer.chunk_iters
-        fn = compiled["tail"] if (tail_fn is not None and c == trainer.n_chunks - 1) else compiled["chunk"]
+        fn = compiled["tail"] if (trainer.run_tail is not None and c == trainer.n_chunks - 1) else compiled["chunk"]
         t = time.perf_counter()
         state, m = fn(state, jnp.int32(start_iter))
         m = jax.device_get(m)
@@ -155,7 +203,7 @@ def run(config: dict, out: str, *, resume: bool = False, overwrite: bool = False
                           "env_steps_per_s_per_seed": steps_run / max(train_s, 1e-9),
                           "env_steps_per_s_all_seeds": S * steps_run / max(train_s, 1e-9)}}
     if finished and config["eval_episodes"] > 0:
-        ev = evaluate_state(trainer, state, config)
+        ev = evaluate_state(trainer, state, config, prog["evaluate"])
         summary["eval"] = ev["summary"]
         _write_eval_csv(os.path.join(out, "eval.csv"), ev["rows"])
     metrics.write_json(os.path.join(out, "summary.json"), summary)
@@ -165,11 +213,12 @@ def run(config: dict, out: str, *, resume: bool = False, overwrite: bool = False
     return {"state": state, "log": log, "summary": summary}
 
 
-def evaluate_state(trainer, state, config: dict) -> dict:
+def evaluate_state(trainer, state, config: dict, eval_fn=None) -> dict:
     """Greedy evaluation of every seed's agent: ``eval_episodes`` episodes each (vmapped over seeds)."""
     key = jax.random.PRNGKey(config["seed"] + 10_000)
     keys = jax.random.split(key, config["num_seeds"])
-    rec = jax.device_get(jax.jit(jax.vmap(trainer.evaluate))(state.agent, keys))  # [S, N]
+    eval_fn = jax.jit(jax.vmap(trainer.evaluate)) if eval_fn is None else eval_fn
+    rec = jax.device_get(eval_fn(state.agent, keys))  # [S, N]
     rows = []
     n = config["eval_episodes"]
     for s in range(config["num_seeds"]):
@@ -203,11 +252,11 @@ def evaluate_checkpoint(out: str, episodes: int | None = None, step: int | None 
         config = json.load(f)
     if episodes is not None:
         config["eval_episodes"] = int(episodes)
-    trainer = make_train(config, env)
-    template = jax.eval_shape(jax.vmap(trainer.init), seed_keys(config))
+    prog = _program(config, env)
+    template = jax.eval_shape(prog["init"], seed_keys(config))
     with Checkpointer(os.path.join(out, "checkpoints")) as ckpt:
         state, meta = ckpt.restore(step, template)
-    ev = evaluate_state(trainer, jax.device_put(state), config)
+    ev = evaluate_state(prog["trainer"], jax.device_put(state, prog["sharding"]), config, prog["evaluate"])
     ev["env_steps"] = meta.get("env_steps")
     return ev
 

@@ -146,6 +146,28 @@ class CSQAgent:
         """Greedy joint action (p14) from ``values`` ``[..., n, 2, A1..An]`` -> int32 ``[..., n]``."""
         return self._solve(values, 0)
 
+    def solve_equilibrium(self, params, obs: jax.Array) -> jax.Array:
+        """p14 at ``obs`` ``[..., 2, D]`` evaluating only what backward induction needs (two-level Stackelberg rule):
+        the follower's Q2/G2 on all A1*A2 pairs, then the leader's Q1/G1 only at the A1 pairs (a1, BR(a1)). This is
+        40% fewer critic rows than :meth:`equilibrium` of :meth:`values` and gives the same actions (up to
+        float rounding of exact ties). Other rules fall back to the full grid."""
+        c = self.config
+        if c.leader_rule != "stackelberg" or c.n_agents != 2:
+            return self.equilibrium(self.values(params, obs))
+        rule = dict(infeasible=c.infeasible, leader_rule="stackelberg", tie_break=c.resolved_tie_break)
+        a1_n = c.num_actions[0]
+        follower = jax.tree.map(lambda x: x[1:], params)
+        vf = networks.joint_values(follower, obs[..., 1:, :], c.num_actions)[..., 0, :, :, :]  # [..., 2, A1, A2]
+        br = stackelberg_equilibrium([vf[..., Q, :, :]], [vf[..., G, :, :]], [c.cost_threshold[1]], **rule)[..., 0]
+        a1_grid = jnp.broadcast_to(jnp.arange(a1_n, dtype=jnp.int32), br.shape)
+        pairs = jnp.stack([a1_grid, br], axis=-1)  # [..., A1, 2]: (a1, BR(a1))
+        leader = jax.tree.map(lambda x: x[:1], params)
+        lead_obs = jnp.broadcast_to(obs[..., None, :1, :], br.shape + (1, obs.shape[-1]))
+        vl = networks.values_at(leader, lead_obs, pairs, c.num_actions)[..., 0, :]  # [..., A1, 2]
+        a1 = stackelberg_equilibrium([vl[..., Q]], [vl[..., G]], [c.cost_threshold[0]], **rule)[..., 0]
+        a2 = jnp.take_along_axis(br, a1[..., None], axis=-1)[..., 0]
+        return jnp.stack([a1, a2], axis=-1)
+
     def policy(self, values: jax.Array, key: jax.Array, eps: jax.Array) -> jax.Array:
         """Epsilon-greedy Stackelberg acting: each level explores with prob. ``eps[i]``, else best-responds
         (p14 on its sub-game) to the actions executed above it. ``eps = 0`` gives :meth:`equilibrium`."""
@@ -181,11 +203,10 @@ class CSQAgent:
         c = self.config
         eq_obs = batch.next_obs if c.td_action_state == "next" else batch.obs
         eq_params = state.params if c.td_equilibrium_net == "online" else state.target_params
-        vals = self.values(eq_params, eq_obs)
         if c.td_action_noise:
-            a_next = self.policy(vals, key, eps)
+            a_next = self.policy(self.values(eq_params, eq_obs), key, eps)
         else:
-            a_next = self.equilibrium(vals)
+            a_next = self.solve_equilibrium(eq_params, eq_obs)
         boot = networks.values_at(state.target_params, batch.next_obs, a_next, c.num_actions)
         done = batch.terminated
         if not c.bootstrap_on_truncation:
