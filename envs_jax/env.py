@@ -127,6 +127,10 @@ class DrivingEnv:
         self.action_dim = None if self.discrete else int(scenario.longitudinal) + int(scenario.lateral)
         self.action_shape = (NUM_AGENTS,) if self.discrete else (NUM_AGENTS, self.action_dim)
         self.obs_shape = (NUM_AGENTS, 8)
+        # Compiled once per shape and reused by eager calls; inlined when called under jit/vmap.
+        self._reset_jit = jax.jit(self._reset)
+        self._step_jit = jax.jit(lambda key, state, action, params: self._step(key, state, action, params, False))
+        self._substeps_jit = jax.jit(lambda key, state, action, params: self._step(key, state, action, params, True))
 
     def __repr__(self):
         kind = "discrete(5)" if self.discrete else f"continuous({self.action_dim})"
@@ -141,6 +145,9 @@ class DrivingEnv:
     def reset(self, key, params: EnvParams | None = None):
         """Initial observation ``[2, 8]`` and state."""
         params = self._default_params if params is None else params
+        return self._reset_jit(key, params)
+
+    def _reset(self, key, params):
         init = self.scenario.initial_vehicles(key, params)
         x = jnp.asarray(init["x"])
         y = jnp.asarray(init["y"])
@@ -190,16 +197,17 @@ class DrivingEnv:
         ``truncated`` (time limit), ``crashed[2]``, ``arrived[2]``, ``on_road[2]``
         and the scenario's own keys. ``done = all(terminated) | truncated``.
         """
-        obs, state, reward, cost, done, info, _ = self._step(key, state, action, params, record=False)
+        params = self._default_params if params is None else params
+        action = self.check_action(action)
+        obs, state, reward, cost, done, info, _ = self._step_jit(key, state, action, params)
         return obs, state, reward, cost, done, info
 
     def step_substeps(self, key, state: EnvState, action, params: EnvParams | None = None):
         """:meth:`step` plus the per-frame trajectory (``[frames, 2]`` arrays), for parity checks."""
-        return self._step(key, state, action, params, record=True)
+        params = self._default_params if params is None else params
+        return self._substeps_jit(key, state, self.check_action(action), params)
 
     def _step(self, key, state, action, params, record):
-        params = self._default_params if params is None else params
-        action = self.check_action(action)
         prev = state
         dt = 1.0 / self.simulation_frequency
         # Local coordinates of each vehicle on every lane, reused by the controllers of the
