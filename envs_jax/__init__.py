@@ -8,7 +8,7 @@
 """
 
 from envs_jax.env import DrivingEnv, EnvParams, EnvState
-from envs_jax.registry import make, register, scenarios
+from envs_jax.registry import available_scenarios, make, register
 from envs_jax.scenarios.intersection import Intersection
 from envs_jax.scenarios.merge import Merge
 from envs_jax.scenarios.racetrack import Racetrack
@@ -20,4 +20,4 @@ register("roundabout", Roundabout)
 register("intersection", Intersection)
 register("racetrack", Racetrack)
 
-__all__ = ["make", "scenarios", "register", "DrivingEnv", "EnvParams", "EnvState", "AutoResetWrapper", "rollout"]
+__all__ = ["make", "available_scenarios", "register", "DrivingEnv", "EnvParams", "EnvState", "AutoResetWrapper", "rollout"]

@@ -28,13 +28,14 @@ def register(name: str, factory: Callable[[], Scenario]) -> None:
     _SCENARIOS[name] = factory
 
 
-def scenarios() -> list[str]:
+def available_scenarios() -> list[str]:
+    """Names accepted by :func:`make`."""
     return sorted(_SCENARIOS)
 
 
 def _scenario(name: str) -> Scenario:
     if name not in _SCENARIOS:
-        raise ValueError(f"unknown scenario {name!r}; available: {', '.join(scenarios())}")
+        raise ValueError(f"unknown scenario {name!r}; available: {', '.join(available_scenarios())}")
     if name not in _CACHE:
         _CACHE[name] = _SCENARIOS[name]()
     return _CACHE[name]
