@@ -23,8 +23,6 @@ from typing import Sequence
 import jax.numpy as jnp
 import numpy as np
 
-from envs_jax import fastmath as F
-
 STRAIGHT, SINE, CIRCULAR = 0, 1, 2
 
 # highway-env LineType values, kept for rendering.
@@ -160,13 +158,13 @@ def _linear_local(r, px, py):
 
 
 def _sine_offset(r, s):
-    return r["amplitude"] * F.sin(r["pulsation"] * s + r["phase"])
+    return r["amplitude"] * jnp.sin(r["pulsation"] * s + r["phase"])
 
 
 def _circular_local(r, px, py):
     dx = px - r["center_x"]
     dy = py - r["center_y"]
-    phi = F.arctan2(dy, dx)
+    phi = jnp.arctan2(dy, dx)
     phi = r["start_phase"] + wrap_to_pi(phi - r["start_phase"])
     radius = jnp.sqrt(dx * dx + dy * dy)
     s = r["cdir"] * (phi - r["start_phase"]) * r["radius"]
@@ -192,14 +190,14 @@ def position(lanes: LaneTable, idx, s, lat):
     y_lin = r["start_y"] + s * r["dir_y"] + lat_lin * r["lat_y"]
     phi = r["cdir"] * s / jnp.where(r["radius"] == 0, 1.0, r["radius"]) + r["start_phase"]
     rad = r["radius"] - lat * r["cdir"]
-    x_cir = r["center_x"] + rad * F.cos(phi)
-    y_cir = r["center_y"] + rad * F.sin(phi)
+    x_cir = r["center_x"] + rad * jnp.cos(phi)
+    y_cir = r["center_y"] + rad * jnp.sin(phi)
     circ = r["kind"] == CIRCULAR
     return jnp.where(circ, x_cir, x_lin), jnp.where(circ, y_cir, y_lin)
 
 
 def _heading_from_row(r, s):
-    sine_term = F.arctan(r["amplitude"] * r["pulsation"] * F.cos(r["pulsation"] * s + r["phase"]))
+    sine_term = jnp.arctan(r["amplitude"] * r["pulsation"] * jnp.cos(r["pulsation"] * s + r["phase"]))
     h_lin = jnp.where(r["kind"] == SINE, r["heading"] + sine_term, r["heading"])
     radius = jnp.where(r["radius"] == 0, 1.0, r["radius"])
     h_cir = r["cdir"] * s / radius + r["start_phase"] + jnp.pi / 2 * r["cdir"]
@@ -278,8 +276,8 @@ def local_coordinates_all(lanes: LaneTable, px, py, with_heading: bool = True):
             s_sin = s[..., sub]
             lat = lat.at[..., sub].add(-_sine_offset(rs, s_sin))
             if with_heading:
-                h = h.at[..., sub].add(F.arctan(rs["amplitude"] * rs["pulsation"]
-                                                  * F.cos(rs["pulsation"] * s_sin + rs["phase"])))
+                h = h.at[..., sub].add(jnp.arctan(rs["amplitude"] * rs["pulsation"]
+                                                  * jnp.cos(rs["pulsation"] * s_sin + rs["phase"])))
         parts_s.append(s)
         parts_lat.append(lat)
         parts_h.append(h)
@@ -290,7 +288,7 @@ def local_coordinates_all(lanes: LaneTable, px, py, with_heading: bool = True):
         centers = jnp.asarray(lanes.circle_centers)
         dx = px - centers[:, 0]
         dy = py - centers[:, 1]
-        phi_c = F.arctan2(dy, dx)[..., lanes.circle_of_row]
+        phi_c = jnp.arctan2(dy, dx)[..., lanes.circle_of_row]
         radius_c = jnp.sqrt(dx * dx + dy * dy)[..., lanes.circle_of_row]
         phi = r["start_phase"] + wrap_to_pi(phi_c - r["start_phase"])
         s = r["cdir"] * (phi - r["start_phase"]) * r["radius"]

@@ -50,12 +50,13 @@ def test_matches_highway_env_on_random_pairs(x64):
     ha, hb = rng.uniform(-np.pi, np.pi, n), rng.uniform(-np.pi, np.pi, n)
     va, vb = rng.uniform(-15, 15, n), rng.uniform(-15, 15, n)
     dt = 1 / 15
-    out = jax.vmap(lambda *a: C.polygons_intersecting(C.rectangle(a[0], a[1], a[2], 5.0, 2.0),
-                                                      C.rectangle(0.0, 0.0, a[3], 5.0, 2.0),
-                                                      (a[4] * jnp.cos(a[2]) * dt, a[4] * jnp.sin(a[2]) * dt),
-                                                      (a[5] * jnp.cos(a[3]) * dt, a[5] * jnp.sin(a[3]) * dt)))(
+    out = jax.vmap(lambda *a: C.polygons_intersecting(
+        C.rectangle(a[0], a[1], a[2], 5.0, 2.0), C.rectangle(0.0, 0.0, a[3], 5.0, 2.0),
+        jnp.stack([a[4] * jnp.cos(a[2]), a[4] * jnp.sin(a[2])]) * dt,
+        jnp.stack([a[5] * jnp.cos(a[3]), a[5] * jnp.sin(a[3])]) * dt))(
         *(jnp.asarray(v) for v in (xa, ya, ha, hb, va, vb)))
-    inter, will, (tx, ty) = (np.asarray(o) if not isinstance(o, tuple) else tuple(map(np.asarray, o)) for o in out)
+    inter, will, trans = (np.asarray(o) for o in out)
+    tx, ty = trans[:, 0], trans[:, 1]
 
     def poly(x, y, h):
         pts = np.array([[-2.5, -1], [-2.5, 1], [2.5, 1], [2.5, -1]]).T
