@@ -33,24 +33,36 @@ def available_scenarios() -> list[str]:
     return sorted(_SCENARIOS)
 
 
-def _scenario(name: str) -> Scenario:
+def _scenario(name: str, action_mode: str | None = None) -> Scenario:
     if name not in _SCENARIOS:
         raise ValueError(f"unknown scenario {name!r}; available: {', '.join(available_scenarios())}")
-    if name not in _CACHE:
-        _CACHE[name] = _SCENARIOS[name]()
-    return _CACHE[name]
+    key = (name, action_mode)
+    if key not in _CACHE:
+        if action_mode is None:
+            _CACHE[key] = _SCENARIOS[name]()
+        else:
+            probe = _scenario(name)
+            if probe.discrete:
+                raise ValueError(f"{name}: action_mode only applies to the continuous scenarios "
+                                 f"(intersection, racetrack); {name} uses discrete meta-actions")
+            _CACHE[key] = _SCENARIOS[name](action_mode=action_mode)
+    return _CACHE[key]
 
 
-def make(name: str, env_config: dict | None = None, **overrides: Any) -> DrivingEnv:
+def make(name: str, env_config: dict | None = None, action_mode: str | None = None, **overrides: Any) -> DrivingEnv:
     """Create a scenario's environment.
 
     ``overrides`` are fields of the scenario's params (see ``env.default_params``)
-    or the static ``simulation_frequency`` / ``policy_frequency``.
+    or the static ``simulation_frequency`` / ``policy_frequency``. ``action_mode``
+    ("longitudinal", "lateral" or "both") selects the continuous action model of
+    intersection / racetrack (defaults: longitudinal, lateral).
     ``env_config`` is the original repository's ``env_config.json`` dict; the
     keys that apply are translated, rendering keys are ignored, and anything
     else raises ``ValueError``.
     """
-    scenario = _scenario(name)
+    if env_config is not None and action_mode is None:
+        action_mode = _action_mode_from_config(_scenario(name), env_config)
+    scenario = _scenario(name, action_mode)
     params = scenario.default_params()
     static = {"simulation_frequency": scenario.simulation_frequency,
               "policy_frequency": scenario.policy_frequency}
@@ -134,9 +146,23 @@ def _translate_action(scenario: Scenario, action: dict) -> dict:
     lon = action.get("longitudinal", True)
     lat = action.get("lateral", True)
     if (lon, lat) != (scenario.longitudinal, scenario.lateral):
-        raise ValueError(f"{name}: ContinuousAction(longitudinal={lon}, lateral={lat}) is not this scenario's "
-                         f"(longitudinal={scenario.longitudinal}, lateral={scenario.lateral})")
+        raise ValueError(f"{name}: ContinuousAction(longitudinal={lon}, lateral={lat}) does not match "
+                         f"action_mode={getattr(scenario, 'action_mode', None)!r}")
     return {}
+
+
+def _action_mode_from_config(scenario: Scenario, config: dict) -> str | None:
+    """The action mode an env_config's ``ContinuousAction`` asks for (None: the scenario's default)."""
+    action = config.get("action")
+    if scenario.discrete or not isinstance(action, dict):
+        return None
+    if action.get("type") == "MultiAgentAction":
+        action = action.get("action_config", {})
+    if action.get("type") != "ContinuousAction":
+        return None
+    from envs_jax.scenarios.continuous import action_mode
+
+    return action_mode(action.get("longitudinal", True), action.get("lateral", True))
 
 
 def _check_observation(name: str, obs: dict) -> None:

@@ -158,3 +158,16 @@ def test_runs_under_x64(x64):
     obs, st = env.reset(KEY)
     obs, st, r, c, done, info = env.step(KEY, st, np.array([3, 0]))
     assert st.x.dtype == jnp.float64 and obs.dtype == jnp.float64
+
+
+def test_action_mode_is_an_option_of_make():
+    env = envs_jax.make("racetrack", action_mode="both")
+    assert env.action_shape == (2, 2)
+    assert envs_jax.make("intersection").action_shape == (2, 1)
+    config = {"action": {"type": "MultiAgentAction",
+                         "action_config": {"type": "ContinuousAction", "longitudinal": True, "lateral": True}}}
+    assert envs_jax.make("intersection", env_config=config).action_shape == (2, 2)
+    with pytest.raises(ValueError, match="only applies to the continuous"):
+        envs_jax.make("merge", action_mode="both")
+    with pytest.raises(ValueError, match="unknown action_mode"):
+        envs_jax.make("racetrack", action_mode="sideways")
