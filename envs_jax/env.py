@@ -17,7 +17,6 @@ hence the program's shape) and everything else a user may change lives in the
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
 import jax
@@ -368,7 +367,3 @@ class DrivingEnv:
         action = jnp.asarray(action)
         return jnp.clip(jnp.nan_to_num(action, nan=0.0), -1.0, 1.0)
 
-
-def steps_limit(duration: float, policy_frequency: int) -> int:
-    """Number of policy steps after which ``time >= duration`` (host-side helper)."""
-    return int(math.ceil(duration * policy_frequency - 1e-6))

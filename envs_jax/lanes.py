@@ -209,14 +209,6 @@ def heading_at(lanes: LaneTable, idx, s):
     return _heading_from_row(lanes.row(idx), s)
 
 
-def width(lanes: LaneTable, idx):
-    return lanes.row(idx)["width"]
-
-
-def length(lanes: LaneTable, idx):
-    return lanes.row(idx)["length"]
-
-
 def on_lane_coords(lane_length, lane_width, s, lat):
     """``lane.on_lane``: |lat| <= width/2 and -5 <= s < length + 5."""
     return (jnp.abs(lat) <= lane_width / 2) & (-VEHICLE_LENGTH <= s) & (s < lane_length + VEHICLE_LENGTH)
