@@ -22,7 +22,7 @@ import numpy as np
 
 __all__ = [
     "EPISODE_FIELDS", "episode_record", "episodes_from_steps", "EpisodeLog", "bootstrap_ci", "summarize",
-    "format_duration", "progress_line",
+    "format_duration", "progress_line", "window_means", "write_json",
 ]
 
 # Per-episode columns (after seed / episode / env / step bookkeeping columns).

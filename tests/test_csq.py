@@ -126,6 +126,17 @@ def test_td_targets_match_hand_computation(setup):
             np.testing.assert_allclose(y[b, i], [exp_q, exp_g], rtol=1e-5, atol=1e-5)
 
 
+@pytest.mark.parametrize("d, infeasible", [((0.0, 0.0), "min_cost"), ((-0.05, 0.05), "argmax"), ((5.0, 5.0), "min_cost")])
+def test_follower_first_target_equilibrium_equals_full_grid(d, infeasible):
+    """solve_equilibrium (follower grid + leader at (a1, BR(a1)) only) == p14 on the full joint-value grid."""
+    agent = _agent(cost_threshold=d, infeasible=infeasible)
+    st = jax.jit(agent.init)(jax.random.PRNGKey(3))
+    obs = 3.0 * jax.random.normal(jax.random.PRNGKey(4), (3000, 2, 8))
+    fast = jax.jit(agent.solve_equilibrium)(st.params, obs)
+    full = jax.jit(lambda p, o: agent.equilibrium(agent.values(p, o)))(st.params, obs)
+    np.testing.assert_array_equal(fast, full)
+
+
 def test_td_target_constant_critics_by_hand():
     """Critics with zero last-layer weights output their bias: Q1targ = 2, G1targ = 1, Q2targ = -1, G2targ = 3."""
     agent = _agent()
@@ -255,3 +266,16 @@ def test_update_fits_terminal_rewards():
         st, info = upd(st)
     assert float(jnp.sum(info["loss_q"] + info["loss_g"])) < 0.05 * float(jnp.sum(info0["loss_q"] + info0["loss_g"]))
     assert isinstance(st, CSQState)
+
+
+@pytest.mark.slow
+def test_merge_csq_learns_to_merge_safely(tmp_path):
+    """The authors' merge CSQ budget (20k steps) on 4 seeds: near-zero crashes at the end (authors: 0.2%)."""
+    from train.config import load_config
+    from train.run import run
+
+    cfg = load_config("merge", "csq", dict(num_seeds=4, checkpoint_every=0, eval_episodes=1))
+    res = run(cfg, str(tmp_path / "run"), verbose=False)["summary"]
+    assert res["summary"]["crash"]["last"][0] < 0.1
+    assert res["summary"]["total_return"]["last"][0] > 50.0
+    assert res["eval"]["crash"]["mean_ci"][0] <= 0.25

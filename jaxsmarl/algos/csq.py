@@ -130,7 +130,9 @@ class CSQAgent:
         return networks.joint_values(params, obs, self.config.num_actions)
 
     def _solve(self, values: jax.Array, level: int = 0) -> jax.Array:
-        """p14 for the sub-game of agents ``level..n-1``: ``values`` ``[..., n, 2, A_level, ..., A_n]`` -> ``[..., n-level]``."""
+        """p14 for the sub-game of agents ``level..n-1``.
+
+        ``values`` ``[..., n, 2, A_level, ..., A_n]`` -> int32 ``[..., n - level]``."""
         c = self.config
         n = c.n_agents
         ax = values.ndim - 2 - (n - level)  # the agent axis
