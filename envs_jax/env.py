@@ -49,6 +49,9 @@ class EnvParams:
     init_target_speed: Any = None  # MDP vehicles; None = the initial speed
     target_speeds: Any = None  # discrete (MDP) vehicles: the uniform target-speed grid
     obstacles: Any = None
+    # continuous actions: [-1, 1] maps linearly onto these ranges (``ContinuousAction``)
+    acceleration_range: Any = (-5.0, 5.0)  # m/s^2
+    steering_range: Any = (-0.7853981633974483, 0.7853981633974483)  # rad, +-pi/4
 
 
 @struct.dataclass
@@ -215,8 +218,9 @@ class DrivingEnv:
         if self.discrete:
             state = self._decide_discrete(state, coords, action, params)
         else:
-            acc, steer = jax.vmap(lambda a: V.continuous_action(a, self.scenario.longitudinal,
-                                                                 self.scenario.lateral))(action)
+            acc, steer = jax.vmap(lambda a: V.continuous_action(
+                a, self.scenario.longitudinal, self.scenario.lateral,
+                params.acceleration_range, params.steering_range))(action)
             state = state.replace(acceleration=acc.astype(state.x.dtype), steering=steer.astype(state.x.dtype))
 
         obstacles = self._obstacle_shapes(params, state.x.dtype)

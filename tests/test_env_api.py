@@ -171,3 +171,13 @@ def test_action_mode_is_an_option_of_make():
         envs_jax.make("merge", action_mode="both")
     with pytest.raises(ValueError, match="unknown action_mode"):
         envs_jax.make("racetrack", action_mode="sideways")
+
+
+def test_continuous_action_ranges_are_params():
+    """a = +1 for one second at the default +-5 m/s^2 and at a user's +-3 m/s^2 (intersection)."""
+    for limit, expected in ((None, 15.0), (3.0, 13.0)):
+        overrides = {} if limit is None else {"acceleration_range": [-limit, limit]}
+        env = envs_jax.make("intersection", start_noise=0.0, **overrides)
+        _, st = env.reset(KEY)
+        _, st, *_ = env.step(KEY, st, np.ones((2, 1), np.float32))
+        np.testing.assert_allclose(np.asarray(st.speed), expected, atol=1e-4)
