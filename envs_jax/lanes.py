@@ -20,6 +20,7 @@ from __future__ import annotations
 import dataclasses
 from typing import Sequence
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -92,6 +93,15 @@ def _spec(kind, row, forbidden, line_types) -> LaneSpec:
                     line_types=tuple(int(t) for t in line_types))
 
 
+def float_dtype():
+    """The working float dtype: float64 under ``jax_enable_x64``, else float32.
+
+    Host tables are converted with an explicit dtype: JAX 0.10 may otherwise reuse a
+    float64 constant from an earlier x64 trace of the same numpy array.
+    """
+    return jax.dtypes.canonicalize_dtype(np.float64)
+
+
 class LaneTable:
     """All lanes of a road, padded into one float64 table (rows in road-network order).
 
@@ -123,11 +133,11 @@ class LaneTable:
 
     def col(self, name: str, rows=None):
         values = self.table[:, _COL[name]] if rows is None else self.table[rows, _COL[name]]
-        return jnp.asarray(values)
+        return jnp.asarray(values, dtype=float_dtype())
 
     def row(self, idx):
         """Gather lane ``idx`` (traced int, any shape) as a dict of JAX arrays."""
-        table = jnp.asarray(self.table)
+        table = jnp.asarray(self.table, dtype=float_dtype())
         gathered = table[idx]
         out = {name: gathered[..., i] for i, name in enumerate(_FIELDS)}
         out["kind"] = jnp.asarray(self.kind)[idx]
@@ -277,7 +287,7 @@ def local_coordinates_all(lanes: LaneTable, px, py, with_heading: bool = True):
         rows = lanes.circular_rows
         r = {name: lanes.col(name, rows) for name in _FIELDS}
         # atan2 and the radius once per distinct centre (all ring lanes share one).
-        centers = jnp.asarray(lanes.circle_centers)
+        centers = jnp.asarray(lanes.circle_centers, dtype=float_dtype())
         dx = px - centers[:, 0]
         dy = py - centers[:, 1]
         phi_c = jnp.arctan2(dy, dx)[..., lanes.circle_of_row]

@@ -126,7 +126,7 @@ class Intersection(ContinuousScenario, Scenario):
     def initial_vehicles(self, key, params):
         s = self.start_offsets(key, params)
         table = self.road.lanes
-        col = lambda name: jnp.asarray(table.np_col(name)[self.start_lanes])
+        col = lambda name: jnp.asarray(table.np_col(name)[self.start_lanes], dtype=L.float_dtype())
         # StraightLane.position(s, 0) = start + s * direction + 0 * direction_lateral
         x = col("start_x") + s * col("dir_x") + 0.0 * col("lat_x")
         y = col("start_y") + s * col("dir_y") + 0.0 * col("lat_y")

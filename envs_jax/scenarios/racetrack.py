@@ -117,7 +117,7 @@ class Racetrack(ContinuousScenario, Scenario):
 
     def initial_vehicles(self, key, params):
         table = self.road.lanes
-        col = lambda name: jnp.asarray(table.np_col(name)[self.start_lanes])
+        col = lambda name: jnp.asarray(table.np_col(name)[self.start_lanes], dtype=L.float_dtype())
         s = jnp.asarray(params.start_s)
         # Vehicle.make_on_lane: StraightLane.position(s, 0) = start + s * direction + 0 * direction_lateral
         x = col("start_x") + s * col("dir_x") + 0.0 * col("lat_x")
