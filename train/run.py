@@ -156,7 +156,7 @@ def run(config: dict, out: str, *, resume: bool = False, overwrite: bool = False
     jax.block_until_ready(state)
 
     t_compile = time.perf_counter()
-    compiled = _compiled_chunks(prog, state)
+    compiled = _compiled_chunks(prog, state) if done_chunks < trainer.n_chunks else {}
     compile_s = time.perf_counter() - t_compile
     setup_s = time.perf_counter() - t0
 
@@ -198,15 +198,19 @@ def run(config: dict, out: str, *, resume: bool = False, overwrite: bool = False
     finished = chunks_done == trainer.n_chunks
     log.write_csv(csv_path)
 
-    summary = {"config": config, "summary": metrics.summarize(log), "finished": finished,
-               "timing": {"setup_s": setup_s, "compile_s": compile_s, "train_s": train_s, "env_steps_run": steps_run,
-                          "env_steps_per_s_per_seed": steps_run / max(train_s, 1e-9),
-                          "env_steps_per_s_all_seeds": S * steps_run / max(train_s, 1e-9)}}
+    timing = {"setup_s": setup_s, "compile_s": compile_s, "train_s": train_s, "env_steps_run": steps_run,
+              "env_steps_per_s_per_seed": steps_run / max(train_s, 1e-9),
+              "env_steps_per_s_all_seeds": S * steps_run / max(train_s, 1e-9)}
+    summary_path = os.path.join(out, "summary.json")
+    if steps_run == 0 and os.path.exists(summary_path):  # resumed an already finished run: keep its timing
+        with open(summary_path) as f:
+            timing = json.load(f).get("timing", timing)
+    summary = {"config": config, "summary": metrics.summarize(log), "finished": finished, "timing": timing}
     if finished and config["eval_episodes"] > 0:
         ev = evaluate_state(trainer, state, config, prog["evaluate"])
         summary["eval"] = ev["summary"]
         _write_eval_csv(os.path.join(out, "eval.csv"), ev["rows"])
-    metrics.write_json(os.path.join(out, "summary.json"), summary)
+    metrics.write_json(summary_path, summary)
     ckpt.close()
     if verbose and finished:
         _print(_final_report(name, summary), False)
