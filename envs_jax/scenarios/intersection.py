@@ -29,6 +29,7 @@ from flax import struct
 from envs_jax import lanes as L
 from envs_jax.env import EnvParams, Scenario
 from envs_jax.road import RoadNetwork
+from envs_jax.scenarios.arrival import one_shot_arrival
 from envs_jax.scenarios.continuous import ContinuousScenario
 
 C, S, N = L.LINE_CONTINUOUS, L.LINE_STRIPED, L.LINE_NONE
@@ -138,23 +139,13 @@ class Intersection(ContinuousScenario, Scenario):
         in_band = (state.speed >= params.speed_band_low) & (state.speed <= params.speed_band_high)
         reward = params.collision_reward * crashed + params.speed_reward * in_band
         here = (state.lane == jnp.asarray(self.goal_lanes)) & (state.lane_s >= params.arrival_s)
-        arrived = state.arrived
-        # Leader first: +first if nobody has arrived yet, +second if the follower has; one-shot flags.
-        new_l = here[0] & ~arrived[0]
-        bonus_l = jnp.where(new_l, jnp.where(arrived[1], params.second_arrival_reward,
-                                             params.first_arrival_reward), 0.0)
-        first = jnp.where(new_l & ~arrived[1], 1, state.first_arrived)
-        arrived_l = arrived[0] | here[0]
-        new_f = here[1] & ~arrived[1]
-        bonus_f = jnp.where(new_f, jnp.where(arrived_l, params.second_arrival_reward,
-                                             params.first_arrival_reward), 0.0)
-        first = jnp.where(new_f & ~arrived_l, 2, first)
-        arrived = jnp.stack([arrived_l, arrived[1] | here[1]])
-        reward = (reward + jnp.stack([bonus_l, bonus_f])).astype(dtype)
+        bonus, arrived, first = one_shot_arrival(here, state.arrived, state.first_arrived,
+                                                 params.first_arrival_reward, params.second_arrival_reward)
+        reward = (reward + bonus).astype(dtype)
         cost = (params.collision_cost * crashed).astype(dtype)
         offroad_terminal = jnp.asarray(params.offroad_terminal) != 0
         terminated = crashed | here | (offroad_terminal & ~state.on_road)
-        state = state.replace(arrived=arrived, first_arrived=first.astype(jnp.int32))
+        state = state.replace(arrived=arrived, first_arrived=first)
         info = {"crash": jnp.any(crashed), "leader_arrived": arrived[0], "follower_arrived": arrived[1],
                 "first_arrived": state.first_arrived, "at_exit": here}
         return reward, cost, terminated, state, info

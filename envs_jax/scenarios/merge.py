@@ -20,6 +20,7 @@ from flax import struct
 from envs_jax import lanes as L
 from envs_jax.env import EnvParams, Scenario
 from envs_jax.road import RoadNetwork
+from envs_jax.scenarios.arrival import one_shot_arrival
 
 C, S, N = L.LINE_CONTINUOUS_LINE, L.LINE_STRIPED, L.LINE_NONE
 
@@ -96,23 +97,13 @@ class Merge(Scenario):
         crashed = state.crashed
         reward = params.speed_reward * (state.speed_index >= 1) + params.collision_reward * crashed
         beyond = state.x > params.finish_x
-        arrived = state.arrived
-        # Leader first: +first if nobody has arrived yet, +second if the follower has.
-        new_l = beyond[0] & ~arrived[0]
-        bonus_l = jnp.where(new_l, jnp.where(arrived[1], params.second_arrival_reward,
-                                             params.first_arrival_reward), 0.0)
-        first = jnp.where(new_l & ~arrived[1], 1, state.first_arrived)
-        arrived_l = arrived[0] | beyond[0]
-        new_f = beyond[1] & ~arrived[1]
-        bonus_f = jnp.where(new_f, jnp.where(arrived_l, params.second_arrival_reward,
-                                             params.first_arrival_reward), 0.0)
-        first = jnp.where(new_f & ~arrived_l, 2, first)
-        arrived = jnp.stack([arrived_l, arrived[1] | beyond[1]])
-        reward = (reward + jnp.stack([bonus_l, bonus_f])).astype(state.x.dtype)
+        bonus, arrived, first = one_shot_arrival(beyond, state.arrived, state.first_arrived,
+                                                 params.first_arrival_reward, params.second_arrival_reward)
+        reward = (reward + bonus).astype(state.x.dtype)
         cost = (params.collision_cost * crashed).astype(state.x.dtype)
         terminated = crashed | beyond
         crash = jnp.any(crashed)
-        state = state.replace(arrived=arrived, first_arrived=first.astype(jnp.int32))
+        state = state.replace(arrived=arrived, first_arrived=first)
         info = {"crash": crash, "leader_arrived": arrived[0] & ~crash, "follower_arrived": arrived[1] & ~crash,
                 "first_arrived": state.first_arrived}
         return reward, cost, terminated, state, info

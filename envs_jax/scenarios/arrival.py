@@ -1,0 +1,24 @@
+"""The authors' one-shot arrival bonus (merge and intersection): first to arrive gets more."""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+
+
+def one_shot_arrival(here, arrived, first_arrived, first_reward, second_reward):
+    """Bonus for agents reaching their goal for the first time, leader evaluated first.
+
+    ``here[2]``: at the goal now; ``arrived[2]``: arrived at an earlier step (latched);
+    ``first_arrived``: 0 nobody yet, 1 leader first, 2 follower first. The leader gets
+    ``first_reward`` unless the follower arrived before, then ``second_reward``; the
+    follower likewise, seeing the leader's flag of this step (a tie goes to the leader).
+    Returns ``(bonus[2], arrived[2], first_arrived)``.
+    """
+    new_l = here[0] & ~arrived[0]
+    bonus_l = jnp.where(new_l, jnp.where(arrived[1], second_reward, first_reward), 0.0)
+    first = jnp.where(new_l & ~arrived[1], 1, first_arrived)
+    arrived_l = arrived[0] | here[0]
+    new_f = here[1] & ~arrived[1]
+    bonus_f = jnp.where(new_f, jnp.where(arrived_l, second_reward, first_reward), 0.0)
+    first = jnp.where(new_f & ~arrived_l, 2, first)
+    return jnp.stack([bonus_l, bonus_f]), jnp.stack([arrived_l, arrived[1] | here[1]]), first.astype(jnp.int32)
