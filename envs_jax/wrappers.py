@@ -19,6 +19,8 @@ class AutoResetState:
     episode_length: jax.Array
     episode_crash: jax.Array  # any crash so far
     episode_arrived: jax.Array  # [2] arrived at any step
+    episode_offroad: jax.Array  # any vehicle off the road at any step
+    episode_distance: jax.Array  # [2] path length driven (sum of per-step displacements, m)
 
 
 class AutoResetWrapper:
@@ -28,7 +30,9 @@ class AutoResetWrapper:
     ``info["terminal_obs"]`` keeps the last observation of the finished one (for
     bootstrapping), and ``info["returned_episode"]`` flags the step on which an
     episode ended, with its ``episode_return[2]``, ``episode_cost[2]``,
-    ``episode_length``, ``episode_crash`` and ``episode_arrived[2]``.
+    ``episode_length``, ``episode_crash``, ``episode_arrived[2]``,
+    ``episode_offroad`` (any vehicle left the road) and ``episode_distance[2]``
+    (path length per vehicle: the sum of its per-decision displacements).
     """
 
     def __init__(self, env: DrivingEnv):
@@ -41,7 +45,7 @@ class AutoResetWrapper:
         obs, st = self.env.reset(key, params)
         zeros = jnp.zeros(2, st.x.dtype)
         return obs, AutoResetState(st, zeros, zeros, jnp.zeros((), jnp.int32), jnp.zeros((), bool),
-                                   jnp.zeros(2, bool))
+                                   jnp.zeros(2, bool), jnp.zeros((), bool), zeros)
 
     def step(self, key, state: AutoResetState, action, params=None):
         key_step, key_reset = jax.random.split(key)
@@ -51,14 +55,18 @@ class AutoResetWrapper:
         length = state.episode_length + 1
         crash = state.episode_crash | jnp.any(info["crashed"])
         arrived = state.episode_arrived | info["arrived"]
+        offroad = state.episode_offroad | jnp.any(~info["on_road"])
+        dist = state.episode_distance + jnp.hypot(st.x - state.env_state.x, st.y - state.env_state.y)
         obs_reset, st_reset = self.env.reset(key_reset, params)
         new_st = jax.tree_util.tree_map(lambda a, b: jnp.where(done, a, b), st_reset, st)
         new_obs = jnp.where(done, obs_reset, obs)
         info = dict(info)
         info.update(terminal_obs=obs, returned_episode=done, episode_return=ret, episode_cost=cst,
-                    episode_length=length, episode_crash=crash, episode_arrived=arrived)
+                    episode_length=length, episode_crash=crash, episode_arrived=arrived, episode_offroad=offroad,
+                    episode_distance=dist)
         keep = lambda x: jnp.where(done, jnp.zeros_like(x), x)
-        new_state = AutoResetState(new_st, keep(ret), keep(cst), keep(length), keep(crash), keep(arrived))
+        new_state = AutoResetState(new_st, keep(ret), keep(cst), keep(length), keep(crash), keep(arrived),
+                                   keep(offroad), keep(dist))
         return new_obs, new_state, reward, cost, done, info
 
 
@@ -92,7 +100,8 @@ def rollout(env: DrivingEnv, key, num_envs: int, num_steps: int, policy: Callabl
         out = dict(reward=reward, cost=cost, done=done, returned_episode=info["returned_episode"],
                    episode_return=info["episode_return"], episode_cost=info["episode_cost"],
                    episode_length=info["episode_length"], episode_crash=info["episode_crash"],
-                   episode_arrived=info["episode_arrived"])
+                   episode_arrived=info["episode_arrived"], episode_offroad=info["episode_offroad"],
+                   episode_distance=info["episode_distance"])
         return (obs, state, key), out
 
     _, out = jax.lax.scan(body, (obs, state, key), None, length=num_steps)

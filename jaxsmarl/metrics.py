@@ -28,8 +28,10 @@ __all__ = [
 # Per-episode columns (after seed / episode / env / step bookkeeping columns).
 EPISODE_FIELDS = (
     "leader_return", "follower_return", "total_return", "leader_cost", "follower_cost",
-    "crash", "leader_arrived", "follower_arrived", "length",
+    "crash", "leader_arrived", "follower_arrived", "length", "offroad", "leader_distance", "follower_distance",
 )
+# Integer-valued columns (0/1 events and lengths).
+INT_FIELDS = ("crash", "leader_arrived", "follower_arrived", "length", "offroad")
 ID_FIELDS = ("seed", "episode", "env", "end_step")
 
 
@@ -45,6 +47,9 @@ def episode_record(info: Mapping[str, Any]) -> dict:
         "crash": jnp.asarray(info["episode_crash"], jnp.float32),
         "leader_arrived": arrived[..., 0], "follower_arrived": arrived[..., 1],
         "length": jnp.asarray(info["episode_length"], jnp.float32),
+        "offroad": jnp.asarray(info["episode_offroad"], jnp.float32),
+        "leader_distance": jnp.asarray(info["episode_distance"], jnp.float32)[..., 0],
+        "follower_distance": jnp.asarray(info["episode_distance"], jnp.float32)[..., 1],
     }
 
 
@@ -70,7 +75,7 @@ def episodes_from_steps(records: Mapping[str, Any], first_iter: int, num_envs: i
                    "end_step": int((first_iter + t + 1) * num_envs)}
             for k in EPISODE_FIELDS:
                 v = float(cols[k][s, t, e])
-                row[k] = int(round(v)) if k in ("crash", "leader_arrived", "follower_arrived", "length") else v
+                row[k] = int(round(v)) if k in INT_FIELDS else v
             rows.append(row)
             episode_counts[s] += 1
     return rows
@@ -119,10 +124,9 @@ class EpisodeLog:
         rows = []
         with open(path, newline="") as f:
             for r in csv.DictReader(f):
-                row = {}
+                row = {k: 0 if k in INT_FIELDS else 0.0 for k in EPISODE_FIELDS}  # columns added since: 0
                 for k, v in r.items():
-                    row[k] = int(v) if k in ID_FIELDS or k in ("crash", "leader_arrived", "follower_arrived",
-                                                                 "length") else float(v)
+                    row[k] = int(v) if k in ID_FIELDS or k in INT_FIELDS else float(v)
                 rows.append(row)
         return cls(num_seeds, rows)
 

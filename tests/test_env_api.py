@@ -181,3 +181,31 @@ def test_continuous_action_ranges_are_params():
         _, st = env.reset(KEY)
         _, st, *_ = env.step(KEY, st, np.ones((2, 1), np.float32))
         np.testing.assert_allclose(np.asarray(st.speed), expected, atol=1e-4)
+
+
+def test_auto_reset_records_offroad_and_distance_driven():
+    """Racetrack with zero steering and zero acceleration: both cars drive straight at 10 m/s off the first curve
+    (scenarios.md §5.6: off-road at step 21, x=119). The distance is the path length: 10 m/s x 0.2 s per step."""
+    env = envs_jax.make("racetrack")
+    w = envs_jax.AutoResetWrapper(env)
+    params = env.default_params
+    obs, st = w.reset(jax.random.PRNGKey(0), params)
+    step = jax.jit(w.step)
+    a = jnp.zeros(env.action_shape)
+    for t in range(1, 60):
+        x0, y0 = np.asarray(st.env_state.x), np.asarray(st.env_state.y)
+        obs, st, r, c, done, info = step(jax.random.PRNGKey(t), st, a, params)
+        if bool(done):
+            break
+        np.testing.assert_allclose(np.asarray(st.episode_distance) - np.asarray(info["episode_distance"]), 0)
+        step_len = np.hypot(np.asarray(st.env_state.x) - x0, np.asarray(st.env_state.y) - y0)
+        np.testing.assert_allclose(step_len, 2.0, rtol=1e-4)  # 10 m/s x 1/5 s, straight line
+    assert bool(info["returned_episode"]) and bool(info["episode_offroad"])
+    assert int(info["episode_length"]) == 21
+    np.testing.assert_allclose(np.asarray(info["episode_distance"]), 2.0 * 21, rtol=1e-4)
+    # a merge episode on the road all the time never flags off-road
+    env = envs_jax.make("merge")
+    out = jax.jit(envs_jax.rollout, static_argnums=(0, 2, 3))(env, jax.random.PRNGKey(1), 8, 60)
+    ret = np.asarray(out["returned_episode"])
+    assert ret.any()
+    assert np.all(np.asarray(out["episode_distance"])[ret] > 0)
