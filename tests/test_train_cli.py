@@ -19,7 +19,7 @@ from train.loop import make_train, seed_keys
 
 
 @pytest.mark.parametrize("overrides, match", [
-    ({"lrr": 1e-3}, "unknown config key 'lrr'.*Did you mean 'lr'"),
+    ({"lrr": 1e-3}, "unknown config key 'lrr' for algorithm 'csq'.*Did you mean 'lr'"),
     ({"gamma": 1.5}, r"'gamma' must lie in \[0.0, 1.0\]"),
     ({"lr": 0}, "'lr' must lie in"),
     ({"tau": 0.0}, "'tau' must lie in"),
@@ -52,7 +52,7 @@ def test_continuous_scenario_with_discrete_algorithm():
 def test_unknown_key_in_config_file(tmp_path):
     p = tmp_path / "c.json"
     p.write_text(json.dumps({"total_steps": 100, "batchsize": 32}))
-    with pytest.raises(ValueError, match="unknown config key 'batchsize' in .*c.json.*'batch_size'"):
+    with pytest.raises(ValueError, match="unknown config key 'batchsize' for algorithm 'csq' in .*c.json.*'batch_size'"):
         load_config("merge", "csq", config_file=str(p))
     p.write_text("{not json")
     with pytest.raises(ValueError, match="not valid JSON"):

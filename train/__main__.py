@@ -1,6 +1,6 @@
 """Command line: ``python -m train --scenario merge --algo csq --seeds 8``.
 
-Trains N seeds of CSQ (or its unconstrained variant SQ) in one compiled program, writes per-episode metrics,
+Trains N seeds of one algorithm on one scenario in one compiled program, writes per-episode metrics,
 checkpoints and a summary into the run folder, then evaluates the greedy policies. ``--help`` lists everything.
 """
 
@@ -11,7 +11,25 @@ import json
 import os
 import sys
 
-from train.config import ALGOS, DEFAULTS, HELP, SCENARIOS, load_config
+from train.config import ALGOS, COMMON, COMMON_HELP, SCENARIOS, load_config
+
+
+def _keys_help() -> str:
+    """Every configuration key: the common ones, then each group of algorithms sharing a key set."""
+    lines = ["common keys:"]
+    lines += [f"  {k:<24} {COMMON_HELP[k]} (default {json.dumps(COMMON[k])})" for k in COMMON]
+    groups: dict[int, list] = {}
+    for name, sp in ALGOS.items():
+        groups.setdefault(id(sp.defaults), []).append(sp)
+    for specs in groups.values():
+        sp = specs[0]
+        lines.append(f"keys of {', '.join(s.name for s in specs)}:")
+        lines += [f"  {k:<24} {sp.help[k]} (default {json.dumps(sp.defaults[k])})" for k in sp.defaults]
+    return "\n".join(lines)
+
+
+def _algos_help() -> str:
+    return "; ".join(f"{n} = {sp.summary} [{sp.action}]" for n, sp in ALGOS.items())
 
 EPILOG = """\
 examples:
@@ -22,22 +40,22 @@ examples:
   python -m train --set leader_rule=authors --set infeasible=argmax   # the authors' action rule
 
 configuration: defaults <- train/configs/<scenario>_<algo>.json <- --config FILE <- options and --set.
---set accepts any key below (value in JSON syntax; plain words are taken as strings):
-""" + "\n".join(f"  {k:<24} {HELP[k]} (default {json.dumps(DEFAULTS[k])})" for k in DEFAULTS)
+--set accepts the common keys and those of the chosen algorithm (value in JSON syntax; plain words are taken
+as strings):
+""" + _keys_help()
 
 
 def parse_args(argv=None) -> argparse.Namespace:
     p = argparse.ArgumentParser(prog="python -m train", description=__doc__.split("\n\n")[1],
                                 formatter_class=argparse.RawDescriptionHelpFormatter, epilog=EPILOG)
     p.add_argument("--scenario", choices=list(SCENARIOS), default=None,
-                   help="driving scenario (default merge); csq/sq need a discrete one: merge or roundabout")
-    p.add_argument("--algo", choices=list(ALGOS), default=None,
-                   help="csq = constrained Stackelberg Q-learning (paper Alg. 1); sq = the same with d=100 "
-                        "(unconstrained Stackelberg Q-learning, the paper's discrete 'Bi-AC') (default csq)")
+                   help="driving scenario (default merge): merge and roundabout have discrete actions, intersection "
+                        "and racetrack continuous ones; the algorithm must match")
+    p.add_argument("--algo", choices=list(ALGOS), default=None, help=_algos_help() + " (default csq)")
     p.add_argument("--seeds", type=int, default=None, help="number of seeds trained in parallel (default 8)")
     p.add_argument("--seed", type=int, default=None, help="base random seed (default 0)")
     p.add_argument("--steps", type=int, default=None,
-                   help="environment steps per seed (default: the authors' budget, merge 20000, roundabout 10000)")
+                   help="environment steps per seed (default: the authors' budget, e.g. merge 20000, racetrack 500000)")
     p.add_argument("--num-envs", type=int, default=None, help="parallel environments per seed (default 1)")
     p.add_argument("--out", default=None, help="run folder (default runs/<scenario>_<algo>)")
     p.add_argument("--config", default=None, help="JSON file replacing train/configs/<scenario>_<algo>.json")

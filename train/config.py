@@ -1,121 +1,234 @@
-"""Run configuration: defaults, per scenario x algorithm JSON files, validation (before anything compiles).
+"""Run configuration: an algorithm registry, defaults, per scenario x algorithm JSON files, validation.
 
-A configuration is a flat dict. ``load_config(scenario, algo, overrides)`` starts from :data:`DEFAULTS`, applies
-``train/configs/<scenario>_<algo>.json`` (the authors' effective hyper-parameters, original_code.md §8.2), then the
-overrides (command line, ``--set``), and validates everything. Every problem raises ``ValueError`` whose message
-says how to fix it.
+A configuration is a flat dict: the :data:`COMMON` keys every run has (scenario, budget, seeds, chunking,
+evaluation) plus the keys of its algorithm. Each algorithm registers an :class:`AlgoSpec` (in a module of
+:mod:`train.algos`, discovered automatically) with its defaults, one help line per key, validation rules and the
+function that builds its compiled trainer.
+
+``load_config(scenario, algo, overrides)`` starts from the common and the algorithm's defaults, applies
+``train/configs/<scenario>_<algo>.json`` (the authors' effective hyper-parameters), then the overrides (command
+line, ``--set``), and validates everything. Every problem raises ``ValueError`` whose message says how to fix it.
+Nothing here imports JAX, so the command line can answer ``--help`` and reject bad options instantly.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import difflib
 import json
 import math
 import os
-from typing import Any
+from typing import Any, Callable
 
-__all__ = ["DEFAULTS", "HELP", "ALGOS", "SCENARIOS", "CONFIG_DIR", "load_config", "validate", "config_path"]
+__all__ = ["COMMON", "COMMON_HELP", "AlgoSpec", "ALGOS", "SCENARIOS", "CONFIG_DIR", "DEFAULTS", "HELP",
+           "register", "spec", "defaults_for", "help_for", "load_config", "validate", "config_path",
+           "Int", "Num", "Choice", "Bool", "PerAgent", "Sizes"]
 
 CONFIG_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), "configs")
 
 # Known scenarios and their action type (checked again against the env when it is built).
 SCENARIOS = {"merge": "discrete", "roundabout": "discrete", "intersection": "continuous", "racetrack": "continuous"}
-ALGOS = {"csq": "discrete", "sq": "discrete"}  # sq = CSQ with an inactive threshold (the paper's discrete "Bi-AC")
 
-DEFAULTS: dict[str, Any] = {
+COMMON: dict[str, Any] = {
     "scenario": "merge",
     "algo": "csq",
     "total_steps": 20000,
     "num_seeds": 8,
     "seed": 0,
     "num_envs": 1,
-    "updates_per_step": 1,
-    "lr": 1e-3,
-    "gamma": 0.95,
-    "tau": 0.01,
-    "target_update_every": 10,
-    "batch_size": 64,
-    "warmup": 512,
-    "buffer_size": 500000,
-    "cost_threshold": [5.0, 5.0],
-    "eps_start": [0.1, 0.1],
-    "eps_min": [0.0, 0.0],
-    "eps_decay": 5e-6,
-    "hidden_sizes": [64, 64, 64],
-    "init": "torch",
-    "leader_rule": "stackelberg",
-    "infeasible": "min_cost",
-    "tie_break": None,
-    "td_action_state": "next",
-    "td_action_noise": False,
-    "td_equilibrium_net": "online",
-    "bootstrap_on_truncation": True,
     "chunk_steps": 1000,
     "checkpoint_every": 5000,
     "eval_episodes": 10,
     "eval_max_steps": 200,
 }
 
-HELP: dict[str, str] = {
+COMMON_HELP: dict[str, str] = {
     "scenario": "driving scenario: merge | roundabout (discrete actions); intersection | racetrack (continuous)",
-    "algo": "csq (constrained Stackelberg Q-learning) | sq (same algorithm, threshold d=100: unconstrained)",
-    "total_steps": "environment steps per seed (the authors' time_steps: merge 20000, roundabout 10000)",
+    "algo": "training algorithm (see --help for the list)",
+    "total_steps": "environment steps per seed, over all its parallel envs (defaults: the authors' budgets)",
     "num_seeds": "independent training runs, vmapped in one program",
     "seed": "base seed; run i uses jax.random.fold_in(key(seed), i)",
     "num_envs": "parallel environments per seed (each loop iteration steps all of them)",
-    "updates_per_step": "gradient updates per loop iteration (authors: 1 per environment step)",
-    "lr": "Adam learning rate of every reward and cost critic (authors' lr_critic)",
-    "gamma": "discount factor",
-    "tau": "soft target update rate: theta' <- (1-tau) theta' + tau theta",
-    "target_update_every": "gradient updates between soft target updates (authors' update_rate)",
-    "batch_size": "transitions per gradient update",
-    "warmup": "transitions stored before the first update (authors' sample_size)",
-    "buffer_size": "replay capacity per seed (FIFO); never more than total_steps slots are allocated",
-    "cost_threshold": "per-agent cost limits [d_leader, d_follower] (a single number sets both)",
-    "eps_start": "initial exploration probability [leader, follower] (a single number sets both)",
-    "eps_min": "exploration floor [leader, follower] (a single number sets both)",
-    "eps_decay": "exploration decrease per environment step (linear)",
-    "hidden_sizes": "hidden layer widths of each critic MLP",
-    "init": "weight init: torch (the authors' PyTorch default) | lecun (flax default)",
-    "leader_rule": "stackelberg (paper eq. p14, leader anticipates the follower's best response) | authors "
-                   "(their coded max-max over the leader's own Q/G)",
-    "infeasible": "when no action satisfies the threshold: min_cost (lowest cost, ties to highest Q) | argmax "
-                  "(unconstrained argmax, as the authors)",
-    "tie_break": "equal Q values: first (lowest index) | last (highest, the authors' >= loops) | null (rule default)",
-    "td_action_state": "state at which the target actions are solved: next (paper, s') | current (authors, s)",
-    "td_action_noise": "epsilon-greedy target actions (authors: true)",
-    "td_equilibrium_net": "critics used to solve for the target actions: online (p14) | target",
-    "bootstrap_on_truncation": "true: only an agent's own termination stops bootstrapping (paper); false: the time "
-                               "limit does too (authors)",
     "chunk_steps": "environment steps per compiled chunk; the host logs (and may checkpoint) between chunks",
     "checkpoint_every": "environment steps between checkpoints (a multiple of chunk_steps; 0 = only at the end)",
     "eval_episodes": "greedy evaluation episodes per seed after training (0 = skip)",
     "eval_max_steps": "step cap of one evaluation episode",
 }
 
-_CHOICES = {
-    "init": ("torch", "lecun"),
-    "leader_rule": ("stackelberg", "authors"),
-    "infeasible": ("min_cost", "argmax"),
-    "tie_break": (None, "first", "last"),
-    "td_action_state": ("next", "current"),
-    "td_equilibrium_net": ("online", "target"),
+
+# ----------------------------------------------------------------------------------------------------------
+# Validation rules: each returns the normalised value or raises ValueError naming the key and what is allowed.
+
+@dataclasses.dataclass(frozen=True)
+class Int:
+    lo: int = 0
+
+    def __call__(self, key: str, v: Any) -> int:
+        if isinstance(v, float) and v.is_integer():
+            v = int(v)
+        if not isinstance(v, int) or isinstance(v, bool) or v < self.lo:
+            raise ValueError(f"'{key}' must be an integer >= {self.lo}, got {v!r}")
+        return v
+
+
+@dataclasses.dataclass(frozen=True)
+class Num:
+    lo: float = -math.inf
+    hi: float = math.inf
+    lo_open: bool = False
+    hi_open: bool = False
+    hint: str = ""  # appended to the error message
+
+    def check(self, key: str, v: Any) -> float:
+        hint = f" ({self.hint})" if self.hint else ""
+        if not isinstance(v, (int, float)) or isinstance(v, bool) or not math.isfinite(v):
+            raise ValueError(f"'{key}' must be a finite number, got {v!r}{hint}")
+        if (v <= self.lo if self.lo_open else v < self.lo) or (v >= self.hi if self.hi_open else v > self.hi):
+            raise ValueError(f"'{key}' must lie in {'(' if self.lo_open else '['}{self.lo}, {self.hi}"
+                             f"{')' if self.hi_open else ']'}, got {v}{hint}")
+        return float(v)
+
+    __call__ = check
+
+
+@dataclasses.dataclass(frozen=True)
+class Choice:
+    values: tuple
+
+    def __call__(self, key: str, v: Any) -> Any:
+        if v not in self.values:
+            raise ValueError(f"'{key}' must be one of {', '.join(map(str, self.values))}, got {v!r}")
+        return v
+
+
+@dataclasses.dataclass(frozen=True)
+class Bool:
+    def __call__(self, key: str, v: Any) -> bool:
+        if not isinstance(v, bool):
+            raise ValueError(f"'{key}' must be true or false, got {v!r}")
+        return v
+
+
+@dataclasses.dataclass(frozen=True)
+class PerAgent:
+    """A number per agent ``[leader, follower]``; a single number sets both."""
+
+    num: Num = Num()
+
+    def __call__(self, key: str, v: Any) -> list[float]:
+        if isinstance(v, (int, float)) and not isinstance(v, bool):
+            v = [v, v]
+        if not isinstance(v, (list, tuple)) or len(v) != 2 or not all(
+                isinstance(x, (int, float)) and not isinstance(x, bool) for x in v):
+            raise ValueError(f"'{key}' must be a number or a list of two numbers [leader, follower], got {v!r}")
+        return [self.num.check(key, x) for x in v]
+
+
+@dataclasses.dataclass(frozen=True)
+class Sizes:
+    """A non-empty list of positive integers (hidden layer widths)."""
+
+    def __call__(self, key: str, v: Any) -> list[int]:
+        if not isinstance(v, (list, tuple)) or len(v) == 0 or not all(
+                isinstance(h, int) and not isinstance(h, bool) and h > 0 for h in v):
+            raise ValueError(f"'{key}' must be a non-empty list of positive integers, got {v!r}")
+        return list(v)
+
+
+COMMON_RULES: dict[str, Callable] = {
+    "total_steps": Int(1), "num_seeds": Int(1), "seed": Int(0), "num_envs": Int(1), "chunk_steps": Int(1),
+    "checkpoint_every": Int(0), "eval_episodes": Int(0), "eval_max_steps": Int(1),
 }
-_PER_AGENT = ("cost_threshold", "eps_start", "eps_min")
-_BOOL = ("td_action_noise", "bootstrap_on_truncation")
-_INT_MIN = {"total_steps": 1, "num_seeds": 1, "seed": 0, "num_envs": 1, "updates_per_step": 1,
-            "target_update_every": 1, "batch_size": 1, "warmup": 1, "buffer_size": 1, "chunk_steps": 1,
-            "checkpoint_every": 0, "eval_episodes": 0, "eval_max_steps": 1}
+
+
+# ----------------------------------------------------------------------------------------------------------
+# The registry.
+
+@dataclasses.dataclass(frozen=True)
+class AlgoSpec:
+    """One trainable algorithm.
+
+    ``defaults``/``help``: its own keys (besides :data:`COMMON`); ``rules``: key -> rule (keys without a rule are
+    taken as they are); ``check(cfg)``: cross-key checks on the normalised config, raising ValueError;
+    ``make_train(config, env) -> train.loop.Trainer``: builds the compiled trainer (imports JAX lazily).
+    """
+
+    name: str
+    action: str  # "discrete" | "continuous"
+    summary: str
+    defaults: dict
+    help: dict
+    rules: dict
+    make_train: Callable
+    check: Callable | None = None
+
+    def __post_init__(self):
+        if self.action not in ("discrete", "continuous"):
+            raise ValueError(f"AlgoSpec {self.name}: action must be discrete or continuous")
+        missing = [k for k in self.defaults if k not in self.help]
+        if missing:
+            raise ValueError(f"AlgoSpec {self.name}: keys without a help line: {missing}")
+        clash = [k for k in self.defaults if k in COMMON]
+        if clash:
+            raise ValueError(f"AlgoSpec {self.name}: keys {clash} are common keys")
+
+
+ALGOS: dict[str, AlgoSpec] = {}
+
+
+def register(*specs: AlgoSpec) -> None:
+    for s in specs:
+        ALGOS[s.name] = s
+
+
+def _discover() -> None:
+    """Import every module of :mod:`train.algos`; each registers its algorithms."""
+    import importlib
+    import pkgutil
+
+    import train.algos as pkg
+
+    for m in sorted(pkgutil.iter_modules(pkg.__path__), key=lambda m: m.name):
+        if not m.name.startswith("_"):
+            importlib.import_module(f"train.algos.{m.name}")
+
+
+_discover()
+
+
+def spec(algo: str) -> AlgoSpec:
+    if algo not in ALGOS:
+        raise ValueError(f"unknown algorithm '{algo}'; choose one of {', '.join(ALGOS)}")
+    return ALGOS[algo]
+
+
+def defaults_for(algo: str) -> dict:
+    """Common defaults + the algorithm's."""
+    return {**COMMON, **spec(algo).defaults, "algo": algo}
+
+
+def help_for(algo: str) -> dict:
+    return {**COMMON_HELP, **spec(algo).help}
+
+
+# Back-compatible views: the default algorithm's keys.
+DEFAULTS: dict[str, Any] = defaults_for(COMMON["algo"])
+HELP: dict[str, str] = help_for(COMMON["algo"])
 
 
 def config_path(scenario: str, algo: str) -> str:
     return os.path.join(CONFIG_DIR, f"{scenario}_{algo}.json")
 
 
-def _unknown_key(key: str, where: str) -> ValueError:
-    close = difflib.get_close_matches(key, DEFAULTS, n=1)
+def _unknown_key(key: str, where: str, algo: str) -> ValueError:
+    valid = defaults_for(algo)
+    close = difflib.get_close_matches(key, valid, n=1)
     hint = f" Did you mean '{close[0]}'?" if close else ""
-    return ValueError(f"unknown config key '{key}' in {where}.{hint} Valid keys: {', '.join(DEFAULTS)}.")
+    others = [a for a, s in ALGOS.items() if key in s.defaults]
+    if others:
+        hint += f" ('{key}' is a key of {', '.join(others)})"
+    return ValueError(f"unknown config key '{key}' for algorithm '{algo}' in {where}.{hint} "
+                      f"Valid keys: {', '.join(valid)}.")
 
 
 def load_json(path: str) -> dict:
@@ -134,98 +247,55 @@ def load_config(scenario: str | None = None, algo: str | None = None, overrides:
                 config_file: str | None = None) -> dict:
     """Defaults <- ``configs/<scenario>_<algo>.json`` (or ``config_file``) <- ``overrides``; validated."""
     overrides = dict(overrides or {})
-    for k in overrides:
-        if k not in DEFAULTS:
-            raise _unknown_key(k, "the overrides")
-    scenario = scenario or overrides.get("scenario") or DEFAULTS["scenario"]
-    algo = algo or overrides.get("algo") or DEFAULTS["algo"]
+    scenario = scenario or overrides.get("scenario") or COMMON["scenario"]
+    algo = algo or overrides.get("algo") or COMMON["algo"]
     if scenario not in SCENARIOS:
         raise ValueError(f"unknown scenario '{scenario}'; choose one of {', '.join(SCENARIOS)}")
-    if algo not in ALGOS:
-        raise ValueError(f"unknown algorithm '{algo}'; choose one of {', '.join(ALGOS)}")
+    spec(algo)
     _check_action_type(scenario, algo)
-    cfg = dict(DEFAULTS)
+    valid = defaults_for(algo)
+    for k in overrides:
+        if k not in valid:
+            raise _unknown_key(k, "the overrides", algo)
+    cfg = dict(valid)
     path = config_file or config_path(scenario, algo)
     if config_file or os.path.exists(path):
         data = load_json(path)
         for k in data:
-            if k not in DEFAULTS:
-                raise _unknown_key(k, path)
+            if k not in valid:
+                raise _unknown_key(k, path, algo)
         cfg.update(data)
     cfg.update(overrides)
     cfg["scenario"], cfg["algo"] = scenario, algo
     return validate(cfg)
 
 
-def _check_action_type(scenario: str, algo: str, env_discrete: bool | None = None) -> None:
-    discrete = SCENARIOS.get(scenario) == "discrete" if env_discrete is None else env_discrete
-    if ALGOS[algo] == "discrete" and not discrete:
+def _check_action_type(scenario: str, algo: str) -> None:
+    s = spec(algo)
+    if SCENARIOS[scenario] != s.action:
+        fits = [a for a, sp in ALGOS.items() if sp.action == SCENARIOS[scenario]]
+        scen = [n for n, t in SCENARIOS.items() if t == s.action]
         raise ValueError(
-            f"scenario '{scenario}' has continuous actions but algorithm '{algo}' needs discrete actions; use "
-            f"--scenario merge or --scenario roundabout with {algo}, or a continuous-action algorithm "
-            f"(CS-MADDPG) for {scenario}")
-
-
-def _per_agent(key: str, v: Any) -> list[float]:
-    if isinstance(v, (int, float)) and not isinstance(v, bool):
-        v = [v, v]
-    if not isinstance(v, (list, tuple)) or len(v) != 2 or not all(
-            isinstance(x, (int, float)) and not isinstance(x, bool) for x in v):
-        raise ValueError(f"'{key}' must be a number or a list of two numbers [leader, follower], got {v!r}")
-    return [float(x) for x in v]
+            f"scenario '{scenario}' has {SCENARIOS[scenario]} actions but algorithm '{algo}' needs {s.action} "
+            f"actions; use {algo} with {' or '.join('--scenario ' + x for x in scen)}, or train {scenario} with {', '.join(fits) or 'an algorithm for ' + SCENARIOS[scenario] + ' actions (none registered)'}")
 
 
 def validate(cfg: dict) -> dict:
     """Check keys, types and ranges; normalise per-agent values. Returns a new dict."""
     cfg = dict(cfg)
-    for k in cfg:
-        if k not in DEFAULTS:
-            raise _unknown_key(k, "the configuration")
-    for k in DEFAULTS:
-        cfg.setdefault(k, DEFAULTS[k])
-    if cfg["scenario"] not in SCENARIOS:
+    algo = cfg.get("algo", COMMON["algo"])
+    s = spec(algo)
+    if cfg.get("scenario", COMMON["scenario"]) not in SCENARIOS:
         raise ValueError(f"unknown scenario '{cfg['scenario']}'; choose one of {', '.join(SCENARIOS)}")
-    if cfg["algo"] not in ALGOS:
-        raise ValueError(f"unknown algorithm '{cfg['algo']}'; choose one of {', '.join(ALGOS)}")
-    _check_action_type(cfg["scenario"], cfg["algo"])
-    for k, lo in _INT_MIN.items():
-        v = cfg[k]
-        if isinstance(v, float) and v.is_integer():
-            v = int(v)
-        if not isinstance(v, int) or isinstance(v, bool) or v < lo:
-            raise ValueError(f"'{k}' must be an integer >= {lo}, got {cfg[k]!r}")
-        cfg[k] = v
-    for k in _PER_AGENT:
-        cfg[k] = _per_agent(k, cfg[k])
-    for k in _BOOL:
-        if not isinstance(cfg[k], bool):
-            raise ValueError(f"'{k}' must be true or false, got {cfg[k]!r}")
-    for k, allowed in _CHOICES.items():
-        if cfg[k] not in allowed:
-            raise ValueError(f"'{k}' must be one of {', '.join(map(str, allowed))}, got {cfg[k]!r}")
-
-    def num(k, lo, hi, lo_open=False, hi_open=False):
-        v = cfg[k]
-        if not isinstance(v, (int, float)) or isinstance(v, bool) or not math.isfinite(v):
-            raise ValueError(f"'{k}' must be a finite number, got {v!r}")
-        if (v <= lo if lo_open else v < lo) or (v >= hi if hi_open else v > hi):
-            raise ValueError(f"'{k}' must lie in {'(' if lo_open else '['}{lo}, {hi}{')' if hi_open else ']'}, got {v}")
-        cfg[k] = float(v)
-
-    num("lr", 0.0, math.inf, lo_open=True, hi_open=True)
-    num("gamma", 0.0, 1.0)
-    num("tau", 0.0, 1.0, lo_open=True)
-    num("eps_decay", 0.0, 1.0)
-    for k in ("eps_start", "eps_min"):
-        if not all(0.0 <= x <= 1.0 for x in cfg[k]):
-            raise ValueError(f"'{k}' values are probabilities and must lie in [0, 1], got {cfg[k]}")
-    if any(not math.isfinite(x) for x in cfg["cost_threshold"]):
-        raise ValueError(f"'cost_threshold' must be finite (use 100 for 'unconstrained'), got {cfg['cost_threshold']}")
-    hs = cfg["hidden_sizes"]
-    if not isinstance(hs, (list, tuple)) or len(hs) == 0 or not all(
-            isinstance(h, int) and not isinstance(h, bool) and h > 0 for h in hs):
-        raise ValueError(f"'hidden_sizes' must be a non-empty list of positive integers, got {hs!r}")
-    cfg["hidden_sizes"] = list(hs)
+    valid = defaults_for(algo)
+    for k in cfg:
+        if k not in valid:
+            raise _unknown_key(k, "the configuration", algo)
+    for k, v in valid.items():
+        cfg.setdefault(k, v)
+    _check_action_type(cfg["scenario"], algo)
+    for k, rule in {**COMMON_RULES, **s.rules}.items():
+        cfg[k] = rule(k, cfg[k])
 
     n = cfg["num_envs"]
     for k in ("total_steps", "chunk_steps"):
@@ -235,7 +305,6 @@ def validate(cfg: dict) -> dict:
     if cfg["checkpoint_every"] % cfg["chunk_steps"]:
         raise ValueError(f"'checkpoint_every' ({cfg['checkpoint_every']}) must be a multiple of chunk_steps "
                          f"({cfg['chunk_steps']}): checkpoints are written between chunks")
-    if cfg["warmup"] > cfg["buffer_size"]:
-        raise ValueError(f"'warmup' ({cfg['warmup']}) exceeds buffer_size ({cfg['buffer_size']}): training would "
-                         "never start; lower warmup or raise buffer_size")
+    if s.check is not None:
+        s.check(cfg)
     return cfg

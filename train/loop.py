@@ -1,21 +1,28 @@
-"""The compiled off-policy training loop (PureJaxRL style), shared by every replay-based algorithm.
+"""The compiled training loops' shared parts, and the off-policy loop (PureJaxRL style).
 
-``make_train(config)`` returns a :class:`Trainer` whose functions are pure and per seed; vmap them over seeds:
+``make_train(config)`` returns a :class:`Trainer` for ``config["algo"]`` (built by the algorithm's
+:class:`train.config.AlgoSpec`). Its functions are pure and per seed; vmap them over seeds:
 
-* ``init(key) -> RunnerState``: agent state, empty device-resident replay buffer, ``num_envs`` reset envs, RNG key.
-* ``run_chunk(state, start_iter) -> (state, metrics)``: ``chunk_iters`` loop iterations in one ``lax.scan``.
-  One iteration = act in every env (epsilon-greedy), step the auto-resetting envs, store the transitions
-  (with the pre-reset observation as ``s'`` and per-agent ``terminated``), then ``updates_per_step`` gradient
-  updates once ``warmup`` transitions are stored (Algorithm 1's inner loop). ``start_iter`` is unbatched
-  (``in_axes=None``), so warm-up gating is a real branch, not a select, under ``vmap``.
+* ``init(key) -> state``: a pytree with at least ``agent`` (the learner's state, used for evaluation).
+* ``run_chunk(state, start_iter) -> (state, metrics)``: ``chunk_iters`` loop iterations in one compiled program.
+  One iteration steps every one of the ``num_envs`` environments once. ``metrics["episode"]`` holds
+  :func:`jaxsmarl.metrics.episode_record` s shaped ``[chunk_iters, num_envs]``; ``metrics["explore"]``
+  (optional, ``[chunk_iters, k]``) the exploration parameters shown in the progress line; ``metrics["update"]``
+  (optional) the learner's diagnostics. ``start_iter`` is unbatched (``in_axes=None``).
 * ``train(key) -> (state, metrics)``: ``init`` + every chunk, one pure function: ``jit(vmap(train))(keys)``.
-* ``evaluate(agent_state, key) -> records``: ``eval_episodes`` greedy episodes (vmapped).
+* ``evaluate(agent_state, key) -> records``: ``eval_episodes`` greedy episodes (vmapped); see :func:`make_evaluate`.
 
 The host-side driver (:mod:`train.run`) calls ``init`` and ``run_chunk`` itself so it can log and checkpoint
 between chunks; because it runs the very same compiled chunk, a resumed run is bit-identical.
 
-An agent provides ``init(key)``, ``epsilon(env_step)``, ``act(state, obs, key, eps)``, ``greedy_act(state, obs)``,
-``update(state, batch, key, eps) -> (state, info)``, ``transition_example()`` and ``Transition``.
+The off-policy loop (:func:`make_offpolicy_train`, CSQ and the MADDPG family): one iteration = act in every env,
+step the auto-resetting envs, store the transitions (with the pre-reset observation as ``s'`` and per-agent
+``terminated``), then ``updates_per_step`` gradient updates once ``warmup`` transitions are stored (Algorithm 1's
+inner loop); warm-up gating is a real branch, not a select, since the iteration index is unbatched. Its agent
+provides ``init(key)``, ``exploration(env_step)`` (a pytree: CSQ's per-agent epsilon, MADDPG's noise scales),
+``act(state, obs, key, explore)``, ``greedy_act(state, obs)``, ``update(state, batch, key, explore) -> (state,
+info)``, ``transition_example()`` and ``Transition``; the config provides ``warmup``, ``batch_size``,
+``updates_per_step`` and ``buffer_size``.
 """
 
 from __future__ import annotations
@@ -28,9 +35,8 @@ import jax
 import jax.numpy as jnp
 
 from jaxsmarl import buffers, metrics
-from jaxsmarl.algos.csq import CSQAgent, CSQConfig
 
-__all__ = ["RunnerState", "Trainer", "make_env", "make_agent", "make_train", "seed_keys"]
+__all__ = ["RunnerState", "Trainer", "make_env", "make_train", "make_offpolicy_train", "make_evaluate", "seed_keys"]
 
 
 @flax.struct.dataclass
@@ -65,28 +71,6 @@ def make_env(scenario: str):
     return env, envs_jax.AutoResetWrapper(env), env.default_params
 
 
-def make_agent(config: dict, env) -> CSQAgent:
-    """The algorithm named by ``config["algo"]`` for ``env`` (csq and sq are the same algorithm)."""
-    if config["algo"] in ("csq", "sq"):
-        if not env.discrete:
-            raise ValueError(f"scenario '{config['scenario']}' has continuous actions but '{config['algo']}' needs "
-                             "discrete actions; use merge or roundabout")
-        n = env.num_agents
-        cfg = CSQConfig(
-            num_actions=(int(env.num_actions),) * n, obs_dim=int(env.obs_shape[-1]),
-            hidden_sizes=tuple(config["hidden_sizes"]), init=config["init"], lr=config["lr"],
-            gamma=config["gamma"], tau=config["tau"], target_update_every=config["target_update_every"],
-            batch_size=config["batch_size"], cost_threshold=tuple(config["cost_threshold"]),
-            eps_start=tuple(config["eps_start"]), eps_min=tuple(config["eps_min"]), eps_decay=config["eps_decay"],
-            leader_rule=config["leader_rule"], infeasible=config["infeasible"], tie_break=config["tie_break"],
-            td_action_state=config["td_action_state"], td_action_noise=config["td_action_noise"],
-            td_equilibrium_net=config["td_equilibrium_net"],
-            bootstrap_on_truncation=config["bootstrap_on_truncation"],
-        )
-        return CSQAgent(cfg)
-    raise ValueError(f"unknown algorithm '{config['algo']}'; choose csq or sq")
-
-
 def seed_keys(config: dict) -> jax.Array:
     """One raw PRNG key per seed: ``fold_in(PRNGKey(seed), i)``."""
     base = jax.random.PRNGKey(config["seed"])
@@ -94,9 +78,45 @@ def seed_keys(config: dict) -> jax.Array:
 
 
 def make_train(config: dict, env=None) -> Trainer:
-    """Build the per-seed pure training functions. ``env``: optional ``(env, wrapped_env, params)``."""
-    env, wrapped, params = make_env(config["scenario"]) if env is None else env
-    agent = make_agent(config, env)
+    """The trainer of ``config["algo"]``. ``env``: optional ``(env, wrapped_env, params)``."""
+    from train.config import spec
+
+    return spec(config["algo"]).make_train(config, env)
+
+
+def make_evaluate(wrapped, params, act: Callable, episodes: int, max_steps: int) -> Callable:
+    """``evaluate(agent_state, key) -> records[episodes]``: the first finished episode of each of ``episodes``
+    fresh envs, acting with ``act(agent_state, obs) -> action`` (greedy); ``records`` as
+    :func:`jaxsmarl.metrics.episode_record` plus ``returned`` (False when ``max_steps`` ran out first)."""
+
+    def evaluate(agent_state, key):
+        def episode(k):
+            k_reset, k_run = jax.random.split(k)
+            obs, st = wrapped.reset(k_reset, params)
+
+            def body(c, kk):
+                obs, st, rec, found = c
+                a = act(agent_state, obs)
+                obs, st, _, _, _, info = wrapped.step(kk, st, a, params)
+                er = metrics.episode_record(info)
+                take = er["returned"] & ~found
+                rec = jax.tree.map(lambda new, old: jnp.where(take, new, old), er, rec)
+                return (obs, st, rec, found | er["returned"]), None
+
+            rec0 = {k: jnp.zeros((), bool if k == "returned" else jnp.float32)
+                    for k in ("returned",) + metrics.EPISODE_FIELDS}
+            (_, _, rec, _), _ = jax.lax.scan(body, (obs, st, rec0, jnp.zeros((), bool)),
+                                             jax.random.split(k_run, max_steps))
+            return rec
+
+        return jax.vmap(episode)(jax.random.split(key, max(1, episodes)))
+
+    return evaluate
+
+
+def make_offpolicy_train(config: dict, env, agent) -> Trainer:
+    """The replay-based loop for ``agent``. ``env``: ``(env, wrapped_env, params)``."""
+    env, wrapped, params = env
     E = config["num_envs"]
     U = config["updates_per_step"]
     B = config["batch_size"]
@@ -118,12 +138,13 @@ def make_train(config: dict, env=None) -> Trainer:
         st = jax.eval_shape(agent.init, jax.random.PRNGKey(0))
         batch = jax.eval_shape(lambda: jax.tree.map(lambda x: jnp.zeros((B,) + x.shape, x.dtype),
                                                     agent.transition_example()))
-        info = jax.eval_shape(agent.update, st, batch, jax.random.PRNGKey(0), jnp.zeros(n_agents))[1]
+        explore = jax.eval_shape(agent.exploration, jnp.int32(0))
+        info = jax.eval_shape(agent.update, st, batch, jax.random.PRNGKey(0), explore)[1]
         return jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), info)
 
     def iteration(rs: RunnerState, t):
         key, k_act, k_env, k_upd = jax.random.split(rs.key, 4)
-        eps = agent.epsilon(t * E)
+        eps = agent.exploration(t * E)
         actions = agent.act(rs.agent, rs.obs, k_act, eps)
         obs, env_state, reward, cost, done, info = jax.vmap(wrapped.step, in_axes=(0, 0, 0, None))(
             jax.random.split(k_env, E), rs.env_state, actions, params)
@@ -144,7 +165,7 @@ def make_train(config: dict, env=None) -> Trainer:
             return agent_state, _update_info_zeros()
 
         agent_state, upd = jax.lax.cond((t + 1) * E >= warmup, learn, skip, rs.agent)
-        out = {"episode": metrics.episode_record(info), "eps": eps, "update": upd}
+        out = {"episode": metrics.episode_record(info), "explore": eps, "update": upd}
         return RunnerState(agent=agent_state, buffer=buf, env_state=env_state, obs=obs, key=key,
                            iteration=rs.iteration + 1), out
 
@@ -167,29 +188,7 @@ def make_train(config: dict, env=None) -> Trainer:
             m = jax.tree.map(lambda a, b: jnp.concatenate([a, b]), m, m2)
         return rs, m
 
-    def evaluate(agent_state, key):
-        """Greedy (eps = 0) episodes; the first finished episode of each of ``eval_episodes`` fresh envs."""
-
-        def episode(k):
-            k_reset, k_run = jax.random.split(k)
-            obs, st = wrapped.reset(k_reset, params)
-
-            def body(c, kk):
-                obs, st, rec, found = c
-                a = agent.greedy_act(agent_state, obs)
-                obs, st, _, _, _, info = wrapped.step(kk, st, a, params)
-                er = metrics.episode_record(info)
-                take = er["returned"] & ~found
-                rec = jax.tree.map(lambda new, old: jnp.where(take, new, old), er, rec)
-                return (obs, st, rec, found | er["returned"]), None
-
-            rec0 = {k: jnp.zeros((), bool if k == "returned" else jnp.float32)
-                    for k in ("returned",) + metrics.EPISODE_FIELDS}
-            (_, _, rec, _), _ = jax.lax.scan(body, (obs, st, rec0, jnp.zeros((), bool)),
-                                             jax.random.split(k_run, config["eval_max_steps"]))
-            return rec
-
-        return jax.vmap(episode)(jax.random.split(key, max(1, config["eval_episodes"])))
+    evaluate = make_evaluate(wrapped, params, agent.greedy_act, config["eval_episodes"], config["eval_max_steps"])
 
     return Trainer(config=config, env=env, agent=agent, init=init, run_chunk=run_chunk, run_tail=run_tail,
                    train=train, evaluate=evaluate, total_iters=total_iters, chunk_iters=chunk_iters,

@@ -176,7 +176,7 @@ def run(config: dict, out: str, *, resume: bool = False, overwrite: bool = False
         m = jax.device_get(m)
         dt = time.perf_counter() - t
         train_s += dt
-        n_iter = m["eps"].shape[1]
+        n_iter = m["episode"]["returned"].shape[1]
         steps_run += n_iter * E
         n_run += 1
         new = log.add_steps(m["episode"], start_iter, E)
@@ -191,8 +191,9 @@ def run(config: dict, out: str, *, resume: bool = False, overwrite: bool = False
             recent = [r for r in log.rows if r["end_step"] > env_steps - config["chunk_steps"]]
             sps = steps_run / max(train_s, 1e-9)
             eta = (total_steps - env_steps) / max(sps, 1e-9)
-            line = metrics.progress_line(name, env_steps, total_steps, sps, eta, recent,
-                                         eps=np.asarray(m["eps"])[0, -1].tolist())
+            explore = (np.ravel(np.asarray(jax.tree.leaves(m["explore"])[0])[0, -1]).tolist()
+                       if "explore" in m and jax.tree.leaves(m["explore"]) else None)
+            line = metrics.progress_line(name, env_steps, total_steps, sps, eta, recent, eps=explore)
             _print(line, True, end="\n" if is_last else "\r")
     chunks_done = last_meta.get("chunks_done", done_chunks)
     finished = chunks_done == trainer.n_chunks

@@ -117,6 +117,10 @@ class CSQAgent:
         start, low = jnp.asarray(c.eps_start, jnp.float32), jnp.asarray(c.eps_min, jnp.float32)
         return jnp.maximum(low, start - c.eps_decay * jnp.asarray(env_step, jnp.float32))
 
+    def exploration(self, env_step: jax.Array) -> jax.Array:
+        """The training loop's exploration parameters: the per-agent epsilon."""
+        return self.epsilon(env_step)
+
     def transition_example(self) -> Transition:
         c = self.config
         n = c.n_agents
