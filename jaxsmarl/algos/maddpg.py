@@ -1,0 +1,316 @@
+"""Constrained Stackelberg MADDPG (CS-MADDPG, paper Algorithm 2, eqs. p19-p26) and its MADDPG relatives.
+
+Two agents, deterministic actors bounded by ``max_action * tanh``:
+
+* leader ``a1 = mu1(o1)``, follower ``a2 = mu2(o2, a1)`` (decided in order, executed together); with
+  ``stackelberg=False`` (plain MADDPG) ``a2 = mu2(o2)``.
+* per agent a centralized reward critic ``Q_i(s, a1, a2)`` and (``constrained=True``) cost critic
+  ``G_i(s, a1, a2)``, stacked as ``[2 agents, K kinds]`` and evaluated with batched einsums (one program for all
+  critics, as CSQ). ``critic_input="joint"``: ``s = [o1, o2]`` (paper: the global state);
+  ``"own"``: ``s = o_i`` (the authors' critics, original_code.md §3).
+* Critic targets (Alg. 2, critic / cost-critic updates): ``y_i = r_i + gamma (1 - t_i) Q_i^targ(s', a1', a2')``,
+  ``g_i = c_i + gamma (1 - t_i) G_i^targ(s', a1', a2')`` with ``a1' = mu1^targ(o1')``, ``a2' = mu2^targ(o2', a1')``.
+  Algorithm 2 prints ``a1' = mu1(s)``; we use the target actors at s', as the paper's text equations and the
+  authors' code do. ``t_i`` is agent i's OWN termination (``bootstrap_on_truncation=False`` adds the time limit,
+  as the authors' stored ``done``).
+* Actors (p21, p23, p25): leader loss ``mean_B[-Q1(s, a1, a2) + pen_1(G1(s, a1, a2))]`` with ``a1 = mu1(o1)``,
+  ``a2 = mu2(o2, a1)``, differentiated w.r.t. theta1 THROUGH the follower's actor (the Stackelberg total
+  derivative of p23; only theta1 is stepped). Follower loss the same with Q2/G2, differentiated w.r.t. theta2
+  through a2 only (p25). ``pen_i`` is the Lagrangian term of :class:`jaxsmarl.lagrangian.Lagrangian`.
+* Multipliers (p22b/p22d): one per agent, from the batch cost estimates at the current actors' actions.
+* Exploration (authors, §5.1): with probability ``eps_i`` a uniform action, else ``clip(mu_i + noise_i N(0, 1))``;
+  the follower responds to the EXECUTED leader action. ``eps`` and ``noise`` decay linearly per env step.
+* One update = one gradient step of every network from the same parameters (critics and actors together, the
+  actors on the pre-step critics, as the authors' actor-then-critic order), the multiplier step, and the
+  authors' periodic soft target update of all networks (``tau`` every ``target_update_every`` updates).
+
+Differences to the authors' code, as options: ``lambda_rule="authors"`` (non-decreasing lambda and hinge
+penalty), ``critic_input="own"``, ``bootstrap_on_truncation=False``. Their follower step sees the leader actor
+after its step (sequential updates); here both actors step from the same parameters.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+from typing import Any
+
+import flax.linen as nn
+import flax.struct
+import jax
+import jax.numpy as jnp
+import optax
+
+from jaxsmarl import networks
+from jaxsmarl.lagrangian import Lagrangian
+from jaxsmarl.networks import _Dense
+
+__all__ = ["MADDPGConfig", "MADDPGState", "MADDPGAgent", "Actor", "Transition", "critic_values"]
+
+Q, G = 0, 1  # kind axis of the stacked critics
+LEADER, FOLLOWER = 0, 1
+
+
+@dataclasses.dataclass(frozen=True)
+class MADDPGConfig:
+    """Static hyper-parameters (defaults: the authors' intersection CS-MADDPG run, original_code.md §8)."""
+
+    action_dim: int = 1  # per agent
+    obs_dim: int = 8
+    hidden_sizes: tuple[int, ...] = (64, 64, 64)
+    init: str = "torch"  # "torch" (authors' PyTorch default init) or "lecun"
+    max_action: float = 1.0
+    stackelberg: bool = True  # follower conditioned on a1 and leader gradient through mu2
+    constrained: bool = True  # cost critics + Lagrange multipliers
+    critic_input: str = "joint"  # "joint" (paper: s = [o1, o2]) or "own" (authors: o_i)
+    lr_actor: float = 1e-4
+    lr_critic: float = 1e-3
+    gamma: float = 0.95
+    tau: float = 0.01
+    target_update_every: int = 10
+    cost_threshold: tuple[float, ...] = (5.0, 5.0)
+    lambda_rule: str = "dual"  # "dual" (paper p22) or "authors"
+    lr_lambda: float = 1e-3
+    lambda_init: float = 0.0
+    lambda_max: float = 100.0
+    noise_start: tuple[float, ...] = (0.1, 0.1)  # Gaussian action-noise std per agent
+    noise_min: tuple[float, ...] = (0.0, 0.0)
+    eps_start: tuple[float, ...] = (0.1, 0.1)  # probability of a uniform random action per agent
+    eps_min: tuple[float, ...] = (0.0, 0.0)
+    explore_decay: float = 5e-7  # per environment step, both schedules
+    bootstrap_on_truncation: bool = True
+
+    def __post_init__(self):
+        if self.critic_input not in ("joint", "own"):
+            raise ValueError(f"critic_input must be 'joint' or 'own', got {self.critic_input!r}")
+        if self.init not in ("torch", "lecun"):
+            raise ValueError(f"init must be 'torch' or 'lecun', got {self.init!r}")
+        for name in ("cost_threshold", "noise_start", "noise_min", "eps_start", "eps_min"):
+            if len(getattr(self, name)) != 2:
+                raise ValueError(f"{name} needs one value per agent [leader, follower], got {getattr(self, name)}")
+
+    @property
+    def n_kinds(self) -> int:
+        return 2 if self.constrained else 1
+
+    @property
+    def critic_obs_dim(self) -> int:
+        return 2 * self.obs_dim if self.critic_input == "joint" else self.obs_dim
+
+    @property
+    def follower_in_dim(self) -> int:
+        return self.obs_dim + (self.action_dim if self.stackelberg else 0)
+
+
+class Actor(nn.Module):
+    """Deterministic actor: MLP ``hidden`` with ReLU, output ``max_action * tanh`` (authors' ``Actor``)."""
+
+    hidden: Sequence[int] = (64, 64, 64)
+    action_dim: int = 1
+    max_action: float = 1.0
+    init_scheme: str = "torch"
+
+    @nn.compact
+    def __call__(self, x: jax.Array) -> jax.Array:
+        for h in self.hidden:
+            x = nn.relu(_Dense(h, self.init_scheme)(x))
+        return self.max_action * jnp.tanh(_Dense(self.action_dim, self.init_scheme)(x))
+
+
+def critic_values(params, x: jax.Array) -> jax.Array:
+    """Stacked critics (``[n, K, ...]`` :class:`jaxsmarl.networks.JointActionMLP` parameters) on per-agent inputs
+    ``x`` ``[R, n, D_in]`` (agent i's critics read ``x[:, i]``) -> ``[R, n, K]``."""
+    p = params["params"]
+    layers = [p[f"_Dense_{i}"] for i in range(len(p))]
+    h = jnp.einsum("rnd,nkdh->nkrh", x, layers[0]["kernel"]) + layers[0]["bias"][:, :, None]
+    for layer in layers[1:]:
+        h = jnp.einsum("nkrh,nkho->nkro", nn.relu(h), layer["kernel"]) + layer["bias"][:, :, None]
+    return jnp.moveaxis(h[..., 0], 2, 0)
+
+
+@flax.struct.dataclass
+class MADDPGState:
+    actors: Any  # (leader params, follower params)
+    critics: Any  # stacked [2, K, ...]
+    target_actors: Any
+    target_critics: Any
+    actor_opt: Any
+    critic_opt: Any
+    lam: jax.Array  # [2] Lagrange multipliers (unused when unconstrained)
+    n_updates: jax.Array  # int32
+
+
+@flax.struct.dataclass
+class Transition:
+    obs: jax.Array  # [2, obs_dim]
+    action: jax.Array  # [2, action_dim] executed actions
+    reward: jax.Array  # [2]
+    cost: jax.Array  # [2]
+    next_obs: jax.Array  # [2, obs_dim] (pre-reset observation at episode ends)
+    terminated: jax.Array  # bool [2], per-agent terminal flag
+    truncated: jax.Array  # bool [], time limit
+
+
+class MADDPGAgent:
+    """The MADDPG family as pure functions over :class:`MADDPGState` (jit/vmap them freely)."""
+
+    Transition = Transition
+
+    def __init__(self, config: MADDPGConfig):
+        c = self.config = config
+        self.actor = Actor(tuple(c.hidden_sizes), c.action_dim, c.max_action, c.init)
+        self.critic = networks.JointActionMLP(hidden=tuple(c.hidden_sizes), init_scheme=c.init)
+        self.actor_opt = optax.adam(c.lr_actor)
+        self.critic_opt = optax.adam(c.lr_critic)
+        self.lagrangian = Lagrangian(tuple(c.cost_threshold), c.lr_lambda, c.lambda_max, c.lambda_init,
+                                     c.lambda_rule)
+
+    # ---------------------------------------------------------------------------------------------
+    def init(self, key: jax.Array) -> MADDPGState:
+        """Online networks, identical target copies (Alg. 2 initialisation), Adam states, lambda_init."""
+        c = self.config
+        k_crit, k_lead, k_fol = jax.random.split(key, 3)
+        critics = networks.init_stacked(self.critic, k_crit, c.critic_obs_dim, (c.action_dim, c.action_dim),
+                                        shape=(2, c.n_kinds))
+        actors = (self.actor.init(k_lead, jnp.zeros((1, c.obs_dim), jnp.float32)),
+                  self.actor.init(k_fol, jnp.zeros((1, c.follower_in_dim), jnp.float32)))
+        return MADDPGState(actors=actors, critics=critics, target_actors=actors, target_critics=critics,
+                           actor_opt=self.actor_opt.init(actors), critic_opt=self.critic_opt.init(critics),
+                           lam=self.lagrangian.init(), n_updates=jnp.int32(0))
+
+    def transition_example(self) -> Transition:
+        c = self.config
+        return Transition(obs=jnp.zeros((2, c.obs_dim)), action=jnp.zeros((2, c.action_dim)),
+                          reward=jnp.zeros((2,)), cost=jnp.zeros((2,)), next_obs=jnp.zeros((2, c.obs_dim)),
+                          terminated=jnp.zeros((2,), bool), truncated=jnp.zeros((), bool))
+
+    # ---------------------------------------------------------------------------------------------
+    def leader_action(self, actor_params, obs_leader: jax.Array) -> jax.Array:
+        """``mu1(o1)``: ``[..., obs_dim]`` -> ``[..., action_dim]``."""
+        return self.actor.apply(actor_params, obs_leader)
+
+    def follower_action(self, actor_params, obs_follower: jax.Array, a1: jax.Array) -> jax.Array:
+        """``mu2(o2, a1)`` (Stackelberg) or ``mu2(o2)`` (plain MADDPG)."""
+        x = jnp.concatenate([obs_follower, a1], axis=-1) if self.config.stackelberg else obs_follower
+        return self.actor.apply(actor_params, x)
+
+    def joint_action(self, actors, obs: jax.Array) -> jax.Array:
+        """Greedy hierarchical decision ``[..., 2, D]`` -> ``[..., 2, action_dim]``."""
+        a1 = self.leader_action(actors[LEADER], obs[..., LEADER, :])
+        a2 = self.follower_action(actors[FOLLOWER], obs[..., FOLLOWER, :], a1)
+        return jnp.stack([a1, a2], axis=-2)
+
+    def critic_input(self, obs: jax.Array, a1: jax.Array, a2: jax.Array) -> jax.Array:
+        """Per-agent critic inputs ``[B, 2, D_in]``: ``[s, a1, a2]`` with ``s = [o1, o2]`` or ``o_i``."""
+        b = obs.shape[0]
+        acts = jnp.concatenate([a1, a2], axis=-1)
+        if self.config.critic_input == "joint":
+            x = jnp.concatenate([obs.reshape((b, -1)), acts], axis=-1)
+            return jnp.broadcast_to(x[:, None], (b, 2, x.shape[-1]))
+        return jnp.concatenate([obs, jnp.broadcast_to(acts[:, None], (b, 2, acts.shape[-1]))], axis=-1)
+
+    def values(self, critics, obs: jax.Array, actions: jax.Array) -> jax.Array:
+        """Critics at given joint actions: obs ``[B, 2, D]``, actions ``[B, 2, k]`` -> ``[B, 2, K]``."""
+        return critic_values(critics, self.critic_input(obs, actions[:, LEADER], actions[:, FOLLOWER]))
+
+    # ---------------------------------------------------------------------------------------------
+    def exploration(self, env_step: jax.Array) -> dict:
+        """``{"eps": [2], "noise": [2]}`` after ``env_step`` steps: ``max(min, start - decay * step)``."""
+        c = self.config
+        t = jnp.asarray(env_step, jnp.float32)
+        sched = lambda s, m: jnp.maximum(jnp.asarray(m, jnp.float32), jnp.asarray(s, jnp.float32) - c.explore_decay * t)
+        return {"eps": sched(c.eps_start, c.eps_min), "noise": sched(c.noise_start, c.noise_min)}
+
+    def _explore(self, mu: jax.Array, key: jax.Array, eps: jax.Array, noise: jax.Array) -> jax.Array:
+        m = self.config.max_action
+        k_coin, k_unif, k_norm = jax.random.split(key, 3)
+        coin = jax.random.uniform(k_coin, mu.shape[:-1] + (1,)) < eps
+        unif = jax.random.uniform(k_unif, mu.shape, mu.dtype, -m, m)
+        noisy = jnp.clip(mu + noise * jax.random.normal(k_norm, mu.shape, mu.dtype), -m, m)
+        return jnp.where(coin, unif, noisy)
+
+    def act(self, state: MADDPGState, obs: jax.Array, key: jax.Array, explore: dict) -> jax.Array:
+        """Exploring actions ``[..., 2, k]``; the follower responds to the executed (noisy) leader action."""
+        k1, k2 = jax.random.split(key)
+        eps, noise = explore["eps"], explore["noise"]
+        a1 = self._explore(self.leader_action(state.actors[LEADER], obs[..., LEADER, :]), k1, eps[0], noise[0])
+        a2 = self.follower_action(state.actors[FOLLOWER], obs[..., FOLLOWER, :], a1)
+        a2 = self._explore(a2, k2, eps[1], noise[1])
+        return jnp.stack([a1, a2], axis=-2)
+
+    def greedy_act(self, state: MADDPGState, obs: jax.Array) -> jax.Array:
+        return self.joint_action(state.actors, obs)
+
+    # ---------------------------------------------------------------------------------------------
+    def td_targets(self, state: MADDPGState, batch: Transition) -> jax.Array:
+        """``[B, 2, K]``: ``(r_i, c_i) + gamma (1 - t_i) (Q_i^targ, G_i^targ)(s', mu^targ(s'))``."""
+        c = self.config
+        a_next = self.joint_action(state.target_actors, batch.next_obs)
+        boot = self.values(state.target_critics, batch.next_obs, a_next)
+        done = batch.terminated
+        if not c.bootstrap_on_truncation:
+            done = done | batch.truncated[..., None]
+        rc = jnp.stack([batch.reward, batch.cost][: c.n_kinds], axis=-1)
+        return rc + c.gamma * (1.0 - done.astype(rc.dtype))[..., None] * boot
+
+    def actor_values(self, actors, critics, obs: jax.Array, through_follower: bool | None = None) -> jax.Array:
+        """Each agent's critics at the current actors' actions, wired for the actor gradients: ``[B, 2, K]``.
+
+        Row 0 (leader) is ``Q1/G1(s, a1, mu2(o2, a1))`` with ``a1 = mu1(o1)``; gradients reach theta1 through a1
+        directly and, if ``through_follower`` (default: ``stackelberg``), through the follower's actor (p23);
+        theta2 is held fixed there. Row 1 (follower) is ``Q2/G2(s, a1, mu2(o2, a1))`` with a1 held fixed, so its
+        gradient reaches theta2 through a2 only (p25). Critic parameters are held fixed in both rows.
+        """
+        through = self.config.stackelberg if through_follower is None else through_follower
+        critics = jax.lax.stop_gradient(critics)
+        a1 = self.leader_action(actors[LEADER], obs[:, LEADER])
+        a1_fixed = jax.lax.stop_gradient(a1)
+        a2_lead = self.follower_action(jax.lax.stop_gradient(actors[FOLLOWER]), obs[:, FOLLOWER],
+                                       a1 if through else a1_fixed)
+        a2_fol = self.follower_action(actors[FOLLOWER], obs[:, FOLLOWER], a1_fixed)
+        x_lead = self.critic_input(obs, a1, a2_lead)[:, LEADER]
+        x_fol = self.critic_input(obs, a1_fixed, a2_fol)[:, FOLLOWER]
+        return critic_values(critics, jnp.stack([x_lead, x_fol], axis=1))
+
+    def actor_losses(self, actors, critics, lam: jax.Array, obs: jax.Array, through_follower: bool | None = None):
+        """``([2] per-agent losses mean_B(-Q_i + pen_i(G_i)), [B, 2, K] values)``; minimising loss i over
+        theta_i is the ascent of p22a/p22c."""
+        v = self.actor_values(actors, critics, obs, through_follower)
+        per_sample = -v[..., Q]
+        if self.config.constrained:
+            per_sample = per_sample + self.lagrangian.penalty(lam, v[..., G])
+        return jnp.mean(per_sample, axis=0), v
+
+    def _loss(self, params, state: MADDPGState, batch: Transition, targets: jax.Array):
+        critics, actors = params
+        pred = self.values(critics, batch.obs, batch.action)
+        per_net = jnp.mean((pred - jax.lax.stop_gradient(targets)) ** 2, axis=0)  # [2, K]
+        actor_loss, v = self.actor_losses(actors, critics, state.lam, batch.obs)
+        return jnp.sum(per_net) + jnp.sum(actor_loss), (per_net, jnp.mean(pred, axis=0), actor_loss, v)
+
+    def update(self, state: MADDPGState, batch: Transition, key: jax.Array, explore: Any = None):
+        """One step of all critics and actors, the multipliers and the periodic soft target update."""
+        del key, explore  # deterministic given the batch
+        c = self.config
+        targets = self.td_targets(state, batch)
+        grads, (per_net, mean_pred, actor_loss, v) = jax.grad(self._loss, has_aux=True)(
+            (state.critics, state.actors), state, batch, targets)
+        g_crit, g_act = grads
+        upd, critic_opt = self.critic_opt.update(g_crit, state.critic_opt, state.critics)
+        critics = optax.apply_updates(state.critics, upd)
+        upd, actor_opt = self.actor_opt.update(g_act, state.actor_opt, state.actors)
+        actors = optax.apply_updates(state.actors, upd)
+        lam = self.lagrangian.update(state.lam, v[..., G]) if c.constrained else state.lam
+
+        n = state.n_updates  # the authors soft-update when train_step > 0 and train_step % update_rate == 0
+        do_soft = (n > 0) & (n % c.target_update_every == 0)
+        pick = lambda new, old: jax.tree.map(lambda s, t: jnp.where(do_soft, s, t), new, old)
+        target_critics = pick(networks.soft_update(state.target_critics, critics, c.tau), state.target_critics)
+        target_actors = pick(networks.soft_update(state.target_actors, actors, c.tau), state.target_actors)
+        info = {"loss_q": per_net[:, Q], "q_mean": mean_pred[:, Q], "actor_loss": actor_loss}
+        if c.constrained:
+            info.update(loss_g=per_net[:, G], g_mean=mean_pred[:, G], g_actor=jnp.mean(v[..., G], axis=0), lam=lam)
+        new = MADDPGState(actors=actors, critics=critics, target_actors=target_actors,
+                          target_critics=target_critics, actor_opt=actor_opt, critic_opt=critic_opt, lam=lam,
+                          n_updates=n + 1)
+        return new, info
