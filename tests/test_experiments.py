@@ -1,0 +1,112 @@
+"""The experiments driver end to end on a tiny budget: merge CSQ + SQ, 2 seeds, 300 steps; an interrupted run
+resumes, finished runs are kept, figures / GIFs / RESULTS.md are produced; --only and bad options fail cleanly."""
+
+import json
+import os
+
+import numpy as np
+import pytest
+
+pytest.importorskip("matplotlib")
+pytest.importorskip("PIL")
+
+from train import experiments, report  # noqa: E402
+
+TINY = {"total_steps": 300, "num_seeds": 2, "chunk_steps": 100, "checkpoint_every": 100, "eval_episodes": 2,
+        "warmup": 64, "batch_size": 16}
+BUDGETS = {("merge", "csq"): TINY, ("merge", "sq"): TINY}
+
+
+def _read(path):
+    with open(path) as f:
+        return json.load(f)
+
+
+def test_study_end_to_end_resume_and_keep(tmp_path):
+    out = str(tmp_path / "study")
+    # 1. an interrupted run: one chunk of three, then stop
+    item = experiments.plan(["merge/csq"], budgets=BUDGETS)[0]
+    st = experiments.run_one(item, out, gifs=False, verbose=False, max_chunks=1)
+    assert st["status"] == "trained (interrupted)"
+    csq_dir = os.path.join(out, "runs", "merge_csq")
+    assert _read(os.path.join(csq_dir, "summary.json"))["finished"] is False
+
+    # 2. the study resumes it from its checkpoint and trains SQ
+    study = experiments.run_study(out, only=["merge"], budgets=BUDGETS, verbose=False)
+    assert study["runs"]["merge_csq"]["status"] == "resumed"
+    assert study["runs"]["merge_sq"]["status"] == "trained"
+    for algo in ("csq", "sq"):
+        summary = _read(os.path.join(out, "runs", f"merge_{algo}", "summary.json"))
+        assert summary["finished"] is True and summary["config"]["total_steps"] == 300
+        assert os.path.getsize(os.path.join(out, "figures", f"merge_{algo}.gif")) > 0
+    with open(os.path.join(csq_dir, "episodes.csv")) as f:
+        rows = f.read().splitlines()[1:]
+    end_steps = [int(r.split(",")[3]) for r in rows]
+    assert max(end_steps) <= 300 and len(rows) > 2 * 300 / 25  # episodes of both seeds over all 3 chunks
+    for ext in ("png", "pdf"):
+        assert os.path.getsize(os.path.join(out, "figures", f"merge_curves.{ext}")) > 0
+
+    # 3. RESULTS.md: tables with IQM intervals, the authors' values, figures, GIFs, honesty and differences
+    text = open(os.path.join(out, "RESULTS.md")).read()
+    assert "## merge" in text and "| CSQ |" in text and "SQ (Bi-AC" in text
+    assert "56.80 ± 1.33 (n=3)" in text  # the authors' merge CSQ total return (original_code.md §10.4)
+    assert "![merge training curves](figures/merge_curves.png)" in text
+    assert "(figures/merge_csq.gif)" in text and "(figures/merge_sq.gif)" in text
+    assert "is CSQ safer than SQ?" in text and "not comparable: much shorter training" in text
+    assert "Known differences between the paper and the authors' code" in text
+    assert "## roundabout" not in text  # nothing ran there
+
+    # 4. a second invocation keeps the finished runs (no retraining)
+    mtime = os.path.getmtime(os.path.join(csq_dir, "episodes.csv"))
+    study = experiments.run_study(out, only=["merge/csq"], budgets=BUDGETS, verbose=False)
+    assert study["runs"]["merge_csq"]["status"] == "kept"
+    assert os.path.getmtime(os.path.join(csq_dir, "episodes.csv")) == mtime
+    # ... also when asked for another budget: kept and reported, not overwritten
+    other = {("merge", "csq"): dict(TINY, total_steps=200)}
+    study = experiments.run_study(out, only=["merge/csq"], budgets=other, verbose=False, gifs=False)
+    assert study["runs"]["merge_csq"]["status"] == "kept (different config)"
+    assert "total_steps" in study["runs"]["merge_csq"]["reason"]
+    assert os.path.getmtime(os.path.join(csq_dir, "episodes.csv")) == mtime
+
+    # 5. the report's numbers are the IQM of the per-seed last-10% means of episodes.csv
+    from train.figures import load_run
+
+    run = load_run(csq_dir)
+    per_seed = report.final_per_seed(run, "total_return")
+    summary = _read(os.path.join(csq_dir, "summary.json"))
+    np.testing.assert_allclose(per_seed, summary["summary"]["total_return"]["last_per_seed"], rtol=1e-6)
+
+
+def test_unregistered_algorithm_is_skipped(tmp_path):
+    item = {"scenario": "racetrack", "algo": "no-such-algo", "overrides": {"num_seeds": 2}, "extra": {}}
+    st = experiments.run_one(item, str(tmp_path), verbose=False)
+    assert st["status"] == "skipped" and "not registered" in st["reason"]
+    assert not os.path.exists(tmp_path / "runs" / "racetrack_no-such-algo")
+
+
+def test_plan_budgets_and_only():
+    full = experiments.plan()
+    assert [(i["scenario"], i["algo"]) for i in full] == [(s, a) for s, al in experiments.STUDY.items() for a in al]
+    assert all(i["overrides"]["num_seeds"] == experiments.DEFAULT_SEEDS for i in full)
+    quick = {(i["scenario"], i["algo"]): i["overrides"] for i in experiments.plan(quick=True)}
+    assert set(quick) == set(experiments.QUICK)
+    assert quick[("merge", "csq")]["total_steps"] == experiments.QUICK[("merge", "csq")]["total_steps"]
+    sel = experiments.plan(["racetrack/macpo,merge"], seeds=3, steps=500)
+    assert [(i["scenario"], i["algo"]) for i in sel] == [("merge", "csq"), ("merge", "sq"), ("racetrack", "macpo")]
+    assert all(i["overrides"]["num_seeds"] == 3 and i["overrides"]["total_steps"] == 500 for i in sel)
+    with pytest.raises(ValueError, match="unknown scenario 'highway'"):
+        experiments.parse_only(["highway"])
+    with pytest.raises(ValueError, match="runs merge with csq, sq, not 'macpo'"):
+        experiments.parse_only(["merge/macpo"])
+    with pytest.raises(ValueError, match="--seeds must be a positive integer"):
+        experiments.plan(seeds=0)
+
+
+def test_cli_rejects_bad_options(capsys, tmp_path):
+    assert experiments.main(["--only", "highway", "--out", str(tmp_path)]) == 2
+    assert "error: --only 'highway'" in capsys.readouterr().err
+    assert experiments.main(["--only", "merge", "--set", "no_such_key=1", "--out", str(tmp_path)]) == 2
+    assert "no selected (registered) algorithm has this key" in capsys.readouterr().err
+    assert experiments.main(["--only", "merge", "--set", "gamma=2", "--out", str(tmp_path)]) == 2
+    assert "'gamma'" in capsys.readouterr().err
+    assert not os.path.exists(tmp_path / "runs")

@@ -1,0 +1,323 @@
+"""The paper's experiments in one command: every scenario with its algorithms, N seeds, figures and RESULTS.md.
+
+```
+python -m train.experiments                      # full study: the authors' budgets, 10 seeds, runs/experiments/
+python -m train.experiments --quick              # small budgets (table QUICK below), runs/experiments_quick/
+python -m train.experiments --only merge --only racetrack/cs-maddpg --seeds 4
+python -m train.experiments --report-only        # redraw figures and RESULTS.md from the finished runs
+```
+
+Study folder (``--out``)::
+
+    runs/<scenario>_<algo>/   one run folder each (train.run: config.json, episodes.csv, summary.json, eval.csv,
+                              checkpoints/)
+    figures/                  <scenario>_curves.png/.pdf (train.figures), <scenario>_<algo>.gif (train.render)
+    study.json                what was asked, what each run did, and the wall-clock time spent on it
+    RESULTS.md                tables, figures, GIFs and the honesty section (train.report)
+
+Resumable: a run whose summary.json says ``"finished": true`` is not redone; an interrupted one resumes from its
+newest checkpoint (bit-identical to an uninterrupted run); one without a checkpoint starts over. A finished run
+trained with a different configuration (e.g. --quick results in a full study's folder) is kept and reported, not
+overwritten, unless ``--overwrite``. Algorithms that are not registered in :mod:`train.config` yet are skipped
+with a message.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+
+__all__ = ["STUDY", "QUICK", "DEFAULT_SEEDS", "plan", "parse_only", "run_study", "main"]
+
+# Scenario -> algorithms, in the paper's order (ours first, then the baselines).
+STUDY: dict[str, tuple[str, ...]] = {
+    "merge": ("csq", "sq"),
+    "roundabout": ("csq", "sq"),
+    "intersection": ("cs-maddpg", "s-maddpg", "mappo-l", "macpo"),
+    "racetrack": ("cs-maddpg", "s-maddpg", "mappo-l", "macpo"),
+}
+DEFAULT_SEEDS = 10
+
+# --quick budgets per (scenario, algo): overrides of the run configuration. Target: the whole study (12 runs, each
+# with compilation, greedy evaluation and a GIF) in under 15 minutes on a 2-core CPU, i.e. about 75 s per run.
+# Measured (shared 2-core CPU, 2026-11-23, --quick --only merge --only roundabout): 4 seeds x 4000 steps of merge
+# CSQ trained in 10 s, 4 x 3000 of roundabout in 8 s, plus ~15-20 s per run for compilation, evaluation and the
+# GIF; the budgets below (about 2.5x those) should take ~40-50 s per discrete run. The continuous algorithms were
+# not available when this was written: their budgets are placeholders of the same order -- time them and adjust.
+QUICK: dict[tuple[str, str], dict] = {
+    ("merge", "csq"): {"total_steps": 10000, "num_seeds": 5},
+    ("merge", "sq"): {"total_steps": 10000, "num_seeds": 5},
+    ("roundabout", "csq"): {"total_steps": 6000, "num_seeds": 5},
+    ("roundabout", "sq"): {"total_steps": 6000, "num_seeds": 5},
+    ("intersection", "cs-maddpg"): {"total_steps": 5000, "num_seeds": 4},
+    ("intersection", "s-maddpg"): {"total_steps": 5000, "num_seeds": 4},
+    ("intersection", "mappo-l"): {"total_steps": 5000, "num_seeds": 4},
+    ("intersection", "macpo"): {"total_steps": 5000, "num_seeds": 4},
+    ("racetrack", "cs-maddpg"): {"total_steps": 5000, "num_seeds": 4},
+    ("racetrack", "s-maddpg"): {"total_steps": 5000, "num_seeds": 4},
+    ("racetrack", "mappo-l"): {"total_steps": 5000, "num_seeds": 4},
+    ("racetrack", "macpo"): {"total_steps": 5000, "num_seeds": 4},
+}
+QUICK_EVAL_EPISODES = 5
+
+# Keys whose change does not alter the training trajectory (train.run accepts them on resume).
+_RESUME_FREE = ("checkpoint_every", "eval_episodes", "eval_max_steps")
+
+
+def parse_only(items) -> list[tuple[str, str]]:
+    """``["merge", "racetrack/cs-maddpg", "a,b"]`` -> the selected (scenario, algo) pairs, in study order."""
+    if not items:
+        return [(s, a) for s, algos in STUDY.items() for a in algos]
+    chosen = set()
+    for item in items:
+        for part in str(item).split(","):
+            part = part.strip()
+            if not part:
+                continue
+            scenario, _, algo = part.partition("/")
+            if scenario not in STUDY:
+                raise ValueError(f"--only {part!r}: unknown scenario {scenario!r}; choose one of "
+                                 f"{', '.join(STUDY)} (optionally /algorithm)")
+            if algo and algo not in STUDY[scenario]:
+                raise ValueError(f"--only {part!r}: the study runs {scenario} with {', '.join(STUDY[scenario])}, "
+                                 f"not {algo!r}")
+            chosen.update([(scenario, algo)] if algo else [(scenario, a) for a in STUDY[scenario]])
+    return [(s, a) for s, algos in STUDY.items() for a in algos if (s, a) in chosen]
+
+
+def plan(only=None, quick: bool = False, seeds: int | None = None, steps: int | None = None,
+         overrides: dict | None = None, budgets: dict | None = None) -> list[dict]:
+    """The runs of a study: ``{"scenario", "algo", "overrides"}`` each, budgets applied in this order: default
+    seeds, the --quick table (or ``budgets``, a replacement table for tests), ``seeds`` / ``steps``, then
+    ``overrides`` (applied to the runs whose algorithm has the key)."""
+    if seeds is not None and (not isinstance(seeds, int) or seeds < 1):
+        raise ValueError(f"--seeds must be a positive integer, got {seeds!r}")
+    if steps is not None and (not isinstance(steps, int) or steps < 1):
+        raise ValueError(f"--steps must be a positive integer, got {steps!r}")
+    table = budgets if budgets is not None else (QUICK if quick else {})
+    out = []
+    for scenario, algo in parse_only(only):
+        ov: dict = {"num_seeds": DEFAULT_SEEDS}
+        if quick:
+            ov["eval_episodes"] = QUICK_EVAL_EPISODES
+        ov.update(table.get((scenario, algo), {}))
+        if seeds is not None:
+            ov["num_seeds"] = seeds
+        if steps is not None:
+            ov["total_steps"] = steps
+        out.append({"scenario": scenario, "algo": algo, "overrides": ov, "extra": dict(overrides or {})})
+    return out
+
+
+def _resolve(item: dict) -> tuple[dict | None, str]:
+    """The validated config of a planned run, or ``(None, reason)`` when its algorithm is not registered."""
+    from train.config import defaults_for, load_config
+
+    scenario, algo = item["scenario"], item["algo"]
+    try:
+        valid = defaults_for(algo)
+    except ValueError as e:
+        if "unknown algorithm" in str(e):
+            return None, f"algorithm '{algo}' is not registered in train.config yet"
+        raise
+    ov = dict(item["overrides"])
+    ov.update({k: v for k, v in item["extra"].items() if k in valid})
+    try:
+        return load_config(scenario, algo, ov), ""
+    except ValueError as e:
+        if "unknown algorithm" in str(e):
+            return None, f"algorithm '{algo}' is not registered in train.config yet"
+        raise
+
+
+def _read_json(path: str):
+    try:
+        with open(path) as f:
+            return json.load(f)
+    except (OSError, json.JSONDecodeError):
+        return None
+
+
+def _same(saved: dict | None, config: dict) -> bool:
+    if saved is None:
+        return False
+    return all(saved.get(k) == v for k, v in config.items() if k not in _RESUME_FREE)
+
+
+def _has_checkpoint(run_dir: str) -> bool:
+    ckpt = os.path.join(run_dir, "checkpoints")
+    if not os.path.isdir(ckpt):
+        return False
+    from jaxsmarl.checkpoints import Checkpointer
+
+    with Checkpointer(ckpt) as c:
+        return c.latest_step() is not None
+
+
+def run_one(item: dict, study_dir: str, overwrite: bool = False, gifs: bool = True, verbose: bool = True,
+            max_chunks: int | None = None) -> dict:
+    """Train (or resume, or keep) one run of the study and render its GIF. Returns its status record."""
+    import train.run
+
+    scenario, algo = item["scenario"], item["algo"]
+    name = f"{scenario}_{algo}"
+    config, reason = _resolve(item)
+    if config is None:
+        _say(f"{name}: skipped ({reason})", verbose)
+        return {"status": "skipped", "reason": reason}
+    run_dir = os.path.join(study_dir, "runs", name)
+    summary = _read_json(os.path.join(run_dir, "summary.json"))
+    saved = _read_json(os.path.join(run_dir, "config.json"))
+    t0 = time.perf_counter()
+    status = {"config": config}
+    if summary and summary.get("finished") and not overwrite:
+        if _same(saved, config):
+            _say(f"{name}: finished earlier, kept", verbose)
+            status["status"] = "kept"
+        else:
+            diff = {k: (saved.get(k), v) for k, v in config.items()
+                    if k not in _RESUME_FREE and saved.get(k) != v}
+            msg = (f"finished earlier with a different configuration {diff}; kept as it is (pass --overwrite to "
+                   "retrain it, or choose another --out)")
+            _say(f"{name}: {msg}", verbose)
+            status.update(status="kept (different config)", reason=msg)
+    else:
+        resume = (not overwrite) and _same(saved, config) and _has_checkpoint(run_dir)
+        _say(f"{name}: {'resuming' if resume else 'training'} ({config['num_seeds']} seeds x "
+             f"{config['total_steps']} steps)", verbose)
+        res = train.run.run(config, run_dir, resume=resume, overwrite=not resume, verbose=verbose,
+                             max_chunks=max_chunks)
+        status["status"] = ("resumed" if resume else "trained") + ("" if res["summary"]["finished"] else
+                                                                   " (interrupted)")
+    status["train_wall_s"] = time.perf_counter() - t0
+    final = _read_json(os.path.join(run_dir, "summary.json")) or {}
+    if gifs and final.get("finished"):
+        status["gif"] = _render(run_dir, os.path.join(study_dir, "figures", f"{name}.gif"), verbose)
+    return status
+
+
+def _render(run_dir: str, gif: str, verbose: bool) -> str | None:
+    """Seed 0's greedy episode, unless the GIF is newer than the run's summary."""
+    from train import render
+
+    summary = os.path.join(run_dir, "summary.json")
+    if os.path.exists(gif) and os.path.getmtime(gif) >= os.path.getmtime(summary):
+        return gif
+    try:
+        res = render.render_checkpoint(run_dir, gif, seed=0)
+    except Exception as e:  # a figure must never lose a finished study
+        _say(f"  GIF of {run_dir} failed: {type(e).__name__}: {e}", verbose)
+        return None
+    _say(f"  wrote {', '.join(res['paths'])} ({res['frames']} frames)", verbose)
+    return gif
+
+
+def _say(msg: str, verbose: bool) -> None:
+    if verbose:
+        print(msg, flush=True)
+
+
+def run_study(out: str, only=None, quick: bool = False, seeds: int | None = None, steps: int | None = None,
+              overrides: dict | None = None, budgets: dict | None = None, overwrite: bool = False,
+              gifs: bool = True, report_only: bool = False, verbose: bool = True) -> dict:
+    """Run (or resume) the selected runs, then draw the figures and write RESULTS.md. Returns study.json's dict."""
+    from train import figures, report
+
+    items = plan(only, quick, seeds, steps, overrides, budgets)
+    study_dir = os.path.abspath(out)
+    os.makedirs(os.path.join(study_dir, "runs"), exist_ok=True)
+    path = os.path.join(study_dir, "study.json")
+    study = _read_json(path) or {"runs": {}}
+    custom = budgets is not None or seeds is not None or steps is not None or bool(overrides)
+    study.update(quick=quick, budgets="custom" if custom else ("quick" if quick else "default"),
+                 only=[f"{i['scenario']}/{i['algo']}" for i in items])
+    t0 = time.perf_counter()
+    if not report_only:
+        for item in items:
+            key = f"{item['scenario']}_{item['algo']}"
+            status = run_one(item, study_dir, overwrite, gifs, verbose)
+            prev = study["runs"].get(key, {})
+            status["wall_s"] = prev.get("wall_s", 0.0) + status.pop("train_wall_s", 0.0)
+            status.pop("config", None)
+            study["runs"][key] = status
+            _write_json(path, study)
+    paths = figures.make_figures(study_dir)
+    _say(f"figures: {', '.join(p for v in paths.values() for p in v if p.endswith('.png')) or 'none'}", verbose)
+    report_path = report.write_report(study_dir, study)
+    study["last_invocation_s"] = time.perf_counter() - t0
+    _write_json(path, study)
+    _say(f"wrote {report_path} ({study['last_invocation_s']:.0f} s)", verbose)
+    return study
+
+
+def _write_json(path: str, obj) -> None:
+    from jaxsmarl.metrics import write_json
+
+    write_json(path, obj)
+
+
+def _parse_set(items) -> dict:
+    out = {}
+    for item in items:
+        if "=" not in item:
+            raise ValueError(f"--set expects KEY=VALUE, got {item!r}")
+        k, v = item.split("=", 1)
+        try:
+            out[k.strip()] = json.loads(v)
+        except json.JSONDecodeError:
+            out[k.strip()] = v
+    return out
+
+
+def parse_args(argv=None):
+    p = argparse.ArgumentParser(prog="python -m train.experiments", description=__doc__.split("\n\n")[0],
+                                formatter_class=argparse.RawDescriptionHelpFormatter, epilog=(
+                                    "study: " + "; ".join(f"{s}: {', '.join(a)}" for s, a in STUDY.items())))
+    p.add_argument("--quick", action="store_true",
+                   help="small budgets (the QUICK table in train/experiments.py): the whole study in minutes")
+    p.add_argument("--only", action="append", default=[], metavar="SCENARIO[/ALGO]",
+                   help="run only these (repeatable, or comma-separated), e.g. --only merge --only racetrack/macpo")
+    p.add_argument("--seeds", type=int, default=None, help=f"seeds per run (default {DEFAULT_SEEDS}; --quick: "
+                                                           "the QUICK table)")
+    p.add_argument("--steps", type=int, default=None,
+                   help="env steps per seed for every run (default: the authors' budgets; --quick: the QUICK table)")
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="configuration override for every run whose algorithm has KEY (value in JSON syntax)")
+    p.add_argument("--out", default=None, help="study folder (default runs/experiments, or runs/experiments_quick)")
+    p.add_argument("--overwrite", action="store_true", help="retrain the selected runs from scratch")
+    p.add_argument("--no-gifs", action="store_true", help="do not render a GIF per run")
+    p.add_argument("--report-only", action="store_true", help="train nothing: redraw figures and RESULTS.md")
+    p.add_argument("--quiet", action="store_true", help="no progress output")
+    return p.parse_args(argv)
+
+
+def main(argv=None) -> int:
+    args = parse_args(argv)
+    out = args.out or os.path.join("runs", "experiments_quick" if args.quick else "experiments")
+    try:
+        overrides = _parse_set(args.set)
+        items = plan(args.only, args.quick, args.seeds, args.steps, overrides)
+        known = set()
+        for item in items:  # validate every registered run's configuration before anything is trained
+            config, _ = _resolve(item)
+            known.update(config or ())
+        unused = sorted(k for k in overrides if k not in known)
+        if unused:
+            raise ValueError(f"--set {', '.join(unused)}: no selected (registered) algorithm has this key; "
+                             "see python -m train --help for the keys")
+    except ValueError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    import train.run
+
+    train.run.use_all_cpu_cores()
+    run_study(out, args.only, args.quick, args.seeds, args.steps, overrides, overwrite=args.overwrite,
+              gifs=not args.no_gifs, report_only=args.report_only, verbose=not args.quiet)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,201 @@
+"""Training curves of a study (``train.experiments``), one figure per scenario, PNG and PDF (matplotlib, Agg).
+
+Top row: leader, follower and total episode return against training steps. Bottom row: the event curves, crash
+rate and the leader's and follower's arrival rate (racetrack: crash rate, off-road rate, distance driven by the
+leader and the follower). Each algorithm is one line: episodes are binned by the env step at which they ended
+(``end_step`` of ``episodes.csv``), each seed's episodes in a bin are averaged, and the line is the mean over seeds
+with a 95% bootstrap band across seeds. The authors' recorded values (last 10% of training, one marker per seed,
+original_code.md §10.3) sit at the right edge, clearly labelled with their own training budget.
+
+``python -m train.figures STUDY_DIR`` redraws the figures of a study folder.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+
+import numpy as np
+
+from jaxsmarl import metrics, stats
+from train.reference_results import AUTHORS, authors_values
+
+__all__ = ["load_run", "binned_curve", "scenario_panels", "plot_scenario", "make_figures", "ALGO_STYLE"]
+
+RETURN_PANELS = [("leader_return", "leader return"), ("follower_return", "follower return"),
+                 ("total_return", "total return")]
+EVENT_PANELS = {
+    "default": [("crash", "crash rate"), ("leader_arrived", "leader arrival rate"),
+                ("follower_arrived", "follower arrival rate")],
+    "racetrack": [("crash", "crash rate"), ("offroad", "off-road rate"), ("leader_distance", "leader distance (m)"),
+                  ("follower_distance", "follower distance (m)")],
+}
+ALGO_STYLE = {
+    "csq": ("CSQ", "tab:blue"), "sq": ("SQ (Bi-AC: CSQ, d=100)", "tab:orange"),
+    "cs-maddpg": ("CS-MADDPG", "tab:blue"), "s-maddpg": ("S-MADDPG (Bi-AC)", "tab:orange"),
+    "c-maddpg": ("C-MADDPG", "tab:purple"), "maddpg": ("MADDPG", "tab:brown"),
+    "mappo-l": ("MAPPO-L", "tab:green"), "macpo": ("MACPO", "tab:red"),
+}
+
+
+def label(algo: str) -> str:
+    return ALGO_STYLE.get(algo, (algo, None))[0]
+
+
+def load_run(run_dir: str) -> dict | None:
+    """``config``, ``summary`` (summary.json) and ``episodes`` (column arrays of episodes.csv) of a run folder;
+    None when it holds no episodes yet."""
+    csv_path = os.path.join(run_dir, "episodes.csv")
+    cfg_path = os.path.join(run_dir, "config.json")
+    if not (os.path.exists(csv_path) and os.path.exists(cfg_path)):
+        return None
+    with open(cfg_path) as f:
+        config = json.load(f)
+    summary = None
+    if os.path.exists(os.path.join(run_dir, "summary.json")):
+        with open(os.path.join(run_dir, "summary.json")) as f:
+            summary = json.load(f)
+    log = metrics.EpisodeLog.read_csv(csv_path, int(config["num_seeds"]))
+    cols = {k: np.asarray([r[k] for r in log.rows], np.float64)
+            for k in metrics.ID_FIELDS + metrics.EPISODE_FIELDS}
+    return {"dir": run_dir, "config": config, "summary": summary, "episodes": cols, "log": log}
+
+
+def per_seed_series(run: dict, field: str) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Per seed: ``(end_step, value)`` of its episodes in order."""
+    ep = run["episodes"]
+    out = []
+    for s in range(int(run["config"]["num_seeds"])):
+        m = ep["seed"] == s
+        order = np.argsort(ep["episode"][m], kind="stable")
+        out.append((ep["end_step"][m][order], ep[field][m][order]))
+    return out
+
+
+def binned_curve(series: list[tuple[np.ndarray, np.ndarray]], total_steps: int, n_bins: int = 20,
+                 reps: int = 2000, seed: int = 0):
+    """Bin centres ``[B]``, mean over seeds ``[B]`` and its 95% bootstrap band ``[B]``, ``[B]`` across seeds.
+
+    Bin b holds the episodes that ended in ``(b * w, (b + 1) * w]`` env steps, ``w = total_steps / n_bins``; a
+    seed contributes the mean of its episodes in the bin (no episode: no contribution). NaN where no seed has one.
+    """
+    edges = np.linspace(0, total_steps, n_bins + 1)
+    per_seed = np.full((len(series), n_bins), np.nan)
+    for i, (steps, values) in enumerate(series):
+        b = np.clip(np.searchsorted(edges, steps, side="left") - 1, 0, n_bins - 1)
+        for j in range(n_bins):
+            sel = b == j
+            if sel.any():
+                per_seed[i, j] = values[sel].mean()
+    mean, lo, hi = (np.full(n_bins, np.nan) for _ in range(3))
+    for j in range(n_bins):
+        col = per_seed[:, j][np.isfinite(per_seed[:, j])]
+        if col.size:
+            mean[j], lo[j], hi[j] = stats.stratified_bootstrap_ci(col, np.mean, reps=reps, seed=seed)
+    return (edges[:-1] + edges[1:]) / 2, mean, lo, hi
+
+
+def scenario_panels(scenario: str) -> list[tuple[str, str]]:
+    return RETURN_PANELS + EVENT_PANELS.get(scenario, EVENT_PANELS["default"])
+
+
+def plot_scenario(scenario: str, runs: dict[str, dict], out_base: str, n_bins: int = 20) -> list[str]:
+    """Draw one scenario's figure from ``{algo: load_run(...)}``; writes ``out_base.png`` and ``out_base.pdf``."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    panels = scenario_panels(scenario)
+    ncols = max(len(RETURN_PANELS), len(panels) - len(RETURN_PANELS))
+    fig, axes = plt.subplots(2, ncols, figsize=(4.2 * ncols, 6.6), squeeze=False)
+    for ax in axes.ravel()[len(panels):]:
+        ax.set_visible(False)
+    positions = [(0, c) for c in range(len(RETURN_PANELS))] + \
+                [(1, c) for c in range(len(panels) - len(RETURN_PANELS))]
+    x_max = max([int(r["config"]["total_steps"]) for r in runs.values()] or [1])
+    ref_drawn = False
+    for (field, title), (r, c) in zip(panels, positions):
+        ax = axes[r, c]
+        for k, (algo, run) in enumerate(runs.items()):
+            name, color = ALGO_STYLE.get(algo, (algo, None))
+            total = int(run["config"]["total_steps"])
+            x, mean, lo, hi = binned_curve(per_seed_series(run, field), total, n_bins)
+            n = int(run["config"]["num_seeds"])
+            line, = ax.plot(x, mean, color=color, label=f"{name} (ours, {n} seeds)")
+            ax.fill_between(x, lo, hi, color=line.get_color(), alpha=0.2, linewidth=0)
+            ref = authors_values(scenario, algo, field)
+            if ref:
+                steps = AUTHORS[(scenario, algo)]["steps"]
+                budget = f"{steps // 1000}k steps" if steps else "budget unknown"
+                xr = x_max * (1.03 + 0.02 * k)
+                ax.scatter([xr] * len(ref), ref, marker="x", s=30, color=line.get_color(), zorder=5,
+                           label=f"{name}: authors' record, last 10% ({budget}, {len(ref)} seeds)")
+                ref_drawn = True
+        ax.set_title(title)
+        ax.set_xlabel("training env steps per seed")
+        ax.set_xlim(0, x_max * (1.03 + 0.02 * len(runs)) + x_max * 0.02)
+        ax.grid(alpha=0.3)
+        if field in ("crash", "offroad", "leader_arrived", "follower_arrived"):
+            ax.set_ylim(-0.03, 1.03)
+    handles, labels = [], []
+    for ax in axes.ravel():
+        for h, lab in zip(*ax.get_legend_handles_labels()):
+            if lab not in labels:
+                handles.append(h)
+                labels.append(lab)
+    note = ("  x: authors' recorded value per seed, drawn at the right edge" if ref_drawn else "")
+    fig.suptitle(f"{scenario}: mean over seeds with 95% bootstrap band across seeds{note}", fontsize=11)
+    fig.legend(handles, labels, loc="lower center", ncol=min(3, max(1, len(labels))), fontsize=8, frameon=False)
+    n_rows_legend = (len(labels) + 2) // 3
+    fig.tight_layout(rect=(0, 0.035 * n_rows_legend + 0.02, 1, 0.95))
+    os.makedirs(os.path.dirname(os.path.abspath(out_base)), exist_ok=True)
+    paths = []
+    for ext in ("png", "pdf"):
+        path = f"{out_base}.{ext}"
+        fig.savefig(path, dpi=110)
+        paths.append(path)
+    plt.close(fig)
+    return paths
+
+
+def study_runs(study_dir: str) -> dict[str, dict[str, dict]]:
+    """``{scenario: {algo: run}}`` of every run folder ``study_dir/runs/<scenario>_<algo>`` with episodes."""
+    from train.experiments import STUDY
+
+    out: dict[str, dict[str, dict]] = {}
+    runs_dir = os.path.join(study_dir, "runs")
+    for scenario, algos in STUDY.items():
+        for algo in algos:
+            run = load_run(os.path.join(runs_dir, f"{scenario}_{algo}"))
+            if run is not None:
+                out.setdefault(scenario, {})[algo] = run
+    return out
+
+
+def make_figures(study_dir: str, n_bins: int = 20) -> dict[str, list[str]]:
+    """Every scenario's figure into ``study_dir/figures/<scenario>_curves.{png,pdf}``."""
+    out = {}
+    for scenario, runs in study_runs(study_dir).items():
+        out[scenario] = plot_scenario(scenario, runs, os.path.join(study_dir, "figures", f"{scenario}_curves"),
+                                      n_bins)
+    return out
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(prog="python -m train.figures", description="Redraw a study's training curves.")
+    p.add_argument("study_dir", help="folder written by python -m train.experiments")
+    p.add_argument("--bins", type=int, default=20, help="bins along the training steps (default 20)")
+    args = p.parse_args(argv)
+    if args.bins < 1 or not os.path.isdir(os.path.join(args.study_dir, "runs")):
+        print(f"error: {args.study_dir} has no runs/ folder (or --bins < 1)", file=sys.stderr)
+        return 2
+    for scenario, paths in make_figures(args.study_dir, args.bins).items():
+        print(f"{scenario}: {', '.join(paths)}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,293 @@
+"""RESULTS.md of a study (``train.experiments``): tables, figures, GIFs, an honesty section generated from the
+numbers, and the known paper-vs-code differences.
+
+Every number of a run is first reduced to one value per seed: the mean over the last ceil(10%) of that seed's
+training episodes (original_code.md §10.3, the same window as summary.json), or the mean over its greedy
+evaluation episodes. Across seeds we report the inter-quartile mean (IQM) with a 95% stratified bootstrap interval
+(:mod:`jaxsmarl.stats`). Comparisons say "higher" / "lower" only when the two intervals do not overlap.
+
+``python -m train.report STUDY_DIR`` rewrites RESULTS.md from the run folders.
+"""
+
+from __future__ import annotations
+
+import datetime
+import json
+import os
+import sys
+
+import numpy as np
+
+from jaxsmarl import metrics, stats
+from train.figures import label, study_runs
+from train.reference_results import AUTHORS, CODE_DIFFERENCES, PAPER_CLAIMS, authors_summary
+
+__all__ = ["final_per_seed", "eval_per_seed", "interval", "compare", "write_report", "render_report"]
+
+EVENT_FIELDS = {"crash", "offroad", "leader_arrived", "follower_arrived"}
+
+
+def final_per_seed(run: dict, field: str, frac: float = 0.1) -> list[float]:
+    """Per seed: the mean of ``field`` over its last ceil(frac * n) training episodes (``cost`` = leader_cost +
+    follower_cost)."""
+    log = run["log"]
+    if field == "cost":
+        per_seed = [a + b for a, b in zip(log.per_seed("leader_cost"), log.per_seed("follower_cost"))]
+    else:
+        per_seed = log.per_seed(field)
+    return metrics.window_means(per_seed, frac, last=True)
+
+
+def eval_per_seed(run: dict, field: str) -> list[float] | None:
+    """Per seed: mean over its greedy evaluation episodes (summary.json "eval"), None without an evaluation."""
+    ev = (run.get("summary") or {}).get("eval")
+    if not ev:
+        return None
+    if field == "cost":
+        return [a + b for a, b in zip(ev["leader_cost"]["per_seed"], ev["follower_cost"]["per_seed"])]
+    return ev.get(field, {}).get("per_seed")
+
+
+def interval(values) -> tuple[float, float, float]:
+    """IQM and its 95% stratified bootstrap interval across seeds."""
+    return stats.iqm_ci([np.nan if v is None else v for v in values])
+
+
+def _fmt(ci, digits: int = 2) -> str:
+    p, lo, hi = ci
+    if not np.isfinite(p):
+        return "n/a"
+    if lo == hi == p:
+        return f"{p:.{digits}f}"
+    return f"{p:.{digits}f} [{lo:.{digits}f}, {hi:.{digits}f}]"
+
+
+def _digits(field: str) -> int:
+    return 3 if field in EVENT_FIELDS else (0 if field.endswith("distance") else 1)
+
+
+def compare(name_a: str, ci_a, name_b: str, ci_b, what: str) -> tuple[str, int]:
+    """A sentence comparing two IQM intervals and the sign: +1 a higher, -1 a lower, 0 overlapping."""
+    a, b = _fmt(ci_a, 3), _fmt(ci_b, 3)
+    if not (np.isfinite(ci_a[0]) and np.isfinite(ci_b[0])):
+        return f"{what}: cannot compare ({name_a} {a}, {name_b} {b}).", 0
+    if ci_a[2] < ci_b[1]:
+        return f"{name_a}'s {what} is lower than {name_b}'s ({a} vs {b}; the 95% intervals do not overlap).", -1
+    if ci_b[2] < ci_a[1]:
+        return f"{name_a}'s {what} is higher than {name_b}'s ({a} vs {b}; the 95% intervals do not overlap).", 1
+    return (f"{name_a} and {name_b} cannot be told apart on {what}: the 95% intervals overlap ({a} vs {b}); "
+            "the data neither support nor refute a difference.", 0)
+
+
+def _authors_cell(scenario: str, algo: str, field: str, digits: int) -> str:
+    s = authors_summary(scenario, algo, field)
+    if s is None:
+        return "not recorded"
+    m, sd, n = s
+    return f"{m:.{digits}f} ± {sd:.{digits}f} (n={n})" if n > 1 else f"{m:.{digits}f} (n=1)"
+
+
+def _budget(run: dict) -> str:
+    c = run["config"]
+    return f"{c['num_seeds']} x {int(c['total_steps']):,}"
+
+
+def _timing(run: dict, study: dict, key: str) -> str:
+    t = (run.get("summary") or {}).get("timing") or {}
+    wall = ((study or {}).get("runs", {}).get(key) or {}).get("wall_s")
+    parts = []
+    if t:
+        parts.append(f"train {metrics.format_duration(t.get('train_s', 0))}, compile "
+                     f"{t.get('compile_s', 0):.0f}s")
+    if wall:
+        parts.append(f"wall {metrics.format_duration(wall)}")
+    return "; ".join(parts) or "n/a"
+
+
+def _scenario_section(scenario: str, runs: dict[str, dict], study: dict, study_dir: str) -> list[str]:
+    from train.experiments import STUDY
+
+    lines = [f"## {scenario}", "", f"Paper: {PAPER_CLAIMS.get(scenario, '')}", ""]
+    if scenario == "racetrack":
+        event_cols = [("crash", "crash rate"), ("offroad", "off-road rate"), ("leader_distance", "distance L (m)"),
+                      ("follower_distance", "distance F (m)")]
+    else:
+        event_cols = [("crash", "crash rate"), ("leader_arrived", "arrival L"), ("follower_arrived", "arrival F")]
+    cols = [("leader_return", "return L"), ("follower_return", "return F"), ("total_return", "return total"),
+            ("cost", "episode cost (L+F)")] + event_cols
+    lines += ["Training, last 10% of each seed's episodes; IQM [95% stratified bootstrap CI] across seeds:", "",
+              "| algorithm | seeds x steps | " + " | ".join(c[1] for c in cols) + " |",
+              "|---|---|" + "---|" * len(cols)]
+    for algo, run in runs.items():
+        cells = [_fmt(interval(final_per_seed(run, f)), _digits(f)) for f, _ in cols]
+        unfinished = "" if (run.get("summary") or {}).get("finished") else " (unfinished)"
+        lines.append(f"| {label(algo)}{unfinished} | {_budget(run)} | " + " | ".join(cells) + " |")
+    lines += ["", "Greedy evaluation of the final policies (IQM over seeds of the per-seed mean), the authors' "
+              "recorded training values (last 10%, mean ± std over their seeds, original_code.md §10.3) and the "
+              "run's time:", "",
+              "| algorithm | greedy: return total | greedy: crash rate | greedy: seeds with a crash | "
+              "authors: return total | authors: crash rate | authors' run | time |",
+              "|---|---|---|---|---|---|---|---|"]
+    for algo, run in runs.items():
+        ev_ret, ev_crash = eval_per_seed(run, "total_return"), eval_per_seed(run, "crash")
+        g_ret = _fmt(interval(ev_ret), 1) if ev_ret else "n/a"
+        g_crash = _fmt(interval(ev_crash), 3) if ev_crash else "n/a"
+        g_seeds = f"{sum(1 for v in ev_crash if v and v > 0)} of {len(ev_crash)}" if ev_crash else "n/a"
+        ref = AUTHORS.get((scenario, algo))
+        ref_run = (ref["run"] + (f"; {ref['note']}" if ref.get("note") else "")) if ref else "none"
+        lines.append(f"| {label(algo)} | {g_ret} | {g_crash} | {g_seeds} | "
+                     f"{_authors_cell(scenario, algo, 'total_return', 2)} | "
+                     f"{_authors_cell(scenario, algo, 'crash', 3)} | {ref_run} | "
+                     f"{_timing(run, study, f'{scenario}_{algo}')} |")
+    missing = [a for a in STUDY[scenario] if a not in runs]
+    if missing:
+        reasons = []
+        for a in missing:
+            st = ((study or {}).get("runs", {}).get(f"{scenario}_{a}") or {})
+            reasons.append(f"{label(a)} ({st.get('reason') or 'not run in this study'})")
+        lines += ["", "Not in this study: " + "; ".join(reasons) + "."]
+    fig = os.path.join("figures", f"{scenario}_curves.png")
+    if os.path.exists(os.path.join(study_dir, fig)):
+        lines += ["", f"![{scenario} training curves]({fig})  ",
+                  f"(PDF: [figures/{scenario}_curves.pdf](figures/{scenario}_curves.pdf))"]
+    gifs = [(a, os.path.join("figures", f"{scenario}_{a}.gif")) for a in runs]
+    gifs = [(a, g) for a, g in gifs if os.path.exists(os.path.join(study_dir, g))]
+    if gifs:
+        lines += ["", "Greedy episode of seed 0 (green: leader, blue: follower, red: crashed):", "",
+                  "| " + " | ".join(label(a) for a, _ in gifs) + " |", "|" + "---|" * len(gifs),
+                  "| " + " | ".join(f"![{scenario} {a}]({g})" for a, g in gifs) + " |"]
+    return lines + [""]
+
+
+def _honesty(all_runs: dict[str, dict[str, dict]]) -> list[str]:
+    out = ["## Honesty: where our numbers agree with the paper and where they do not", ""]
+    crash = lambda run: interval(final_per_seed(run, "crash"))
+    total = lambda run: interval(final_per_seed(run, "total_return"))
+    for scenario in ("merge", "roundabout"):
+        runs = all_runs.get(scenario, {})
+        if "csq" in runs and "sq" in runs:
+            s, sign = compare("CSQ", crash(runs["csq"]), "SQ", crash(runs["sq"]), f"{scenario} crash rate")
+            verdict = {-1: "agrees with the paper (CSQ safer)", 1: "contradicts the paper (SQ safer)",
+                       0: "does not confirm the paper's claim that CSQ is safer"}[sign]
+            out.append(f"- **{scenario}, is CSQ safer than SQ?** {s} This {verdict}.")
+            c = final_per_seed(runs["csq"], "crash")
+            zero = sum(1 for v in c if v == 0)
+            out.append(f"  - The paper calls CSQ {'100% safe after convergence' if scenario == 'merge' else 'safer'}"
+                       f": {zero} of {len(c)} CSQ seeds had no crash in their last 10% of training episodes.")
+            s, sign = compare("CSQ", total(runs["csq"]), "SQ", total(runs["sq"]), f"{scenario} total return")
+            out.append(f"  - Reward: {s}")
+        elif runs:
+            out.append(f"- **{scenario}:** CSQ vs SQ not compared (both runs are needed).")
+    for scenario in ("intersection", "racetrack"):
+        runs = all_runs.get(scenario, {})
+        if "cs-maddpg" not in runs:
+            if runs:
+                out.append(f"- **{scenario}:** no CS-MADDPG run, no comparison.")
+            continue
+        for base in ("macpo", "mappo-l", "s-maddpg"):
+            if base not in runs:
+                out.append(f"- **{scenario}, CS-MADDPG vs {label(base)}:** not compared ({label(base)} not run).")
+                continue
+            s1, sign_r = compare("CS-MADDPG", total(runs["cs-maddpg"]), label(base), total(runs[base]),
+                                 f"{scenario} total return")
+            s2, sign_c = compare("CS-MADDPG", crash(runs["cs-maddpg"]), label(base), crash(runs[base]),
+                                 f"{scenario} crash rate")
+            beats = sign_r > 0 and sign_c <= 0
+            verdict = ("CS-MADDPG beats it, as the paper says" if beats else
+                       "the paper's claim that CS-MADDPG beats it is not confirmed by these runs")
+            out.append(f"- **{scenario}, does CS-MADDPG beat {label(base)}?** {s1} {s2} Verdict: {verdict}.")
+        if scenario == "racetrack":
+            d = lambda run: interval([a + b for a, b in zip(final_per_seed(run, "leader_distance"),
+                                                             final_per_seed(run, "follower_distance"))])
+            for base in ("macpo", "mappo-l"):
+                if base in runs:
+                    s, _ = compare("CS-MADDPG", d(runs["cs-maddpg"]), label(base), d(runs[base]),
+                                   "distance driven (leader + follower, m)")
+                    out.append(f"  - {s}")
+    # Against the authors' recorded values
+    out += ["", "Against the authors' recorded runs (their last-10% total return, mean over seeds, inside or "
+            "outside our 95% interval):", ""]
+    for scenario, runs in all_runs.items():
+        for algo, run in runs.items():
+            ref = authors_summary(scenario, algo, "total_return")
+            if ref is None:
+                continue
+            ci = total(run)
+            steps = AUTHORS[(scenario, algo)]["steps"]
+            ours = int(run["config"]["total_steps"])
+            where = "inside" if ci[1] <= ref[0] <= ci[2] else ("above" if ref[0] > ci[2] else "below")
+            budget = (f"our budget {ours:,} steps vs the authors' {steps:,}" if steps else
+                      f"our budget {ours:,} steps; the authors' is unknown")
+            caveat = " (not comparable: much shorter training)" if steps and ours < 0.5 * steps else ""
+            out.append(f"- {scenario} {label(algo)}: authors {ref[0]:.1f} is {where} our {_fmt(ci, 1)}; "
+                       f"{budget}{caveat}.")
+    seeds = sorted({int(r["config"]["num_seeds"]) for runs in all_runs.values() for r in runs.values()})
+    if seeds and min(seeds) < 5:
+        out += ["", f"Caution: some runs have only {min(seeds)} seeds; with so few seeds the intervals are wide and "
+                    "the IQM is close to the plain mean."]
+    return out + [""]
+
+
+def _differences(all_runs: dict[str, dict[str, dict]]) -> list[str]:
+    out = ["## Known differences between the paper and the authors' code, and what we follow", ""]
+    configs = [r["config"] for runs in all_runs.values() for r in runs.values()]
+    for key, paper_value, text in CODE_DIFFERENCES:
+        if key is None:
+            out.append(f"- {text}")
+            continue
+        used = sorted({json.dumps(c[key]) for c in configs if key in c})
+        if not used:
+            continue
+        side = "the paper" if used == [json.dumps(paper_value)] else "mixed / the authors' code"
+        out.append(f"- {text} Our runs: `{key}` = {', '.join(used)} ({side}).")
+    return out + ["", "Details: `../shared/reference/original_code.md` §4-§11 and `scenarios.md`.", ""]
+
+
+def render_report(study_dir: str, study: dict | None = None) -> str:
+    all_runs = study_runs(study_dir)
+    quick = bool((study or {}).get("quick"))
+    now = datetime.datetime.now().strftime("%Y-%m-%d %H:%M")
+    budgets = (study or {}).get("budgets", "quick" if quick else "default")
+    kind = {"quick": "quick budgets, far shorter than the authors': a smoke test, not a reproduction",
+            "custom": "budgets set on the command line; compare them with the authors' below",
+            "default": "the authors' budgets"}.get(budgets, budgets)
+    lines = ["# Results: the paper's experiments, reproduced", "",
+             f"Generated by `python -m train.experiments{' --quick' if quick else ''}` on {now} ({kind}).",
+             "Per run: IQM across seeds with 95% stratified bootstrap intervals (jaxsmarl.stats); per seed: the mean "
+             "over its last 10% of training episodes. The authors' numbers are their shipped records "
+             "(3 seeds, original_code.md §10). Figures: mean over seeds with a 95% bootstrap band.", ""]
+    if not all_runs:
+        lines += ["No run has produced episodes yet.", ""]
+    for scenario, runs in all_runs.items():
+        lines += _scenario_section(scenario, runs, study or {}, study_dir)
+    lines += _honesty(all_runs)
+    lines += _differences(all_runs)
+    return "\n".join(lines)
+
+
+def write_report(study_dir: str, study: dict | None = None) -> str:
+    if study is None:
+        path = os.path.join(study_dir, "study.json")
+        if os.path.exists(path):
+            with open(path) as f:
+                study = json.load(f)
+    text = render_report(study_dir, study)
+    out = os.path.join(study_dir, "RESULTS.md")
+    with open(out + ".tmp", "w") as f:
+        f.write(text)
+    os.replace(out + ".tmp", out)
+    return out
+
+
+def main(argv=None) -> int:
+    args = list(sys.argv[1:] if argv is None else argv)
+    if len(args) != 1 or not os.path.isdir(os.path.join(args[0], "runs")):
+        print("usage: python -m train.report STUDY_DIR\nerror: STUDY_DIR must be a folder written by "
+              "python -m train.experiments (with runs/)", file=sys.stderr)
+        return 2
+    print(write_report(args[0]))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
