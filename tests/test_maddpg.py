@@ -1,0 +1,259 @@
+"""CS-MADDPG family (Algorithm 2): Stackelberg actor gradients (p23, p25) against finite differences, TD targets,
+soft updates, exploration schedule, learning on a toy problem with a closed-form optimum, registry and CLI."""
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from jax.flatten_util import ravel_pytree
+
+from jaxsmarl.algos.maddpg import MADDPGAgent, MADDPGConfig, Transition
+from train.config import load_config
+
+D = 8
+
+
+def _agent(**kw) -> MADDPGAgent:
+    base = dict(hidden_sizes=(5,), lambda_rule="dual", cost_threshold=(0.05, -0.1))
+    base.update(kw)
+    return MADDPGAgent(MADDPGConfig(**base))
+
+
+def _critic_ref(agent, critics, i, k, obs, a1, a2):
+    """Agent i's critic of kind k by the flax module on concat(s, a1, a2), s = [o1, o2] or o_i."""
+    p = jax.tree.map(lambda x: x[i, k], critics)
+    s = obs.reshape(obs.shape[0], -1) if agent.config.critic_input == "joint" else obs[:, i]
+    return agent.critic.apply(p, s, jnp.concatenate([a1, a2], -1))
+
+
+def _leader_objective(agent, lam, obs, critics, theta2):
+    """Leader's loss as a function of theta1 alone, the follower's actor responding (p20/p21)."""
+    d1 = agent.config.cost_threshold[0]
+
+    def f(theta1):
+        a1 = agent.actor.apply(theta1, obs[:, 0])
+        a2 = agent.actor.apply(theta2, jnp.concatenate([obs[:, 1], a1], -1))
+        q = _critic_ref(agent, critics, 0, 0, obs, a1, a2)
+        g = _critic_ref(agent, critics, 0, 1, obs, a1, a2)
+        return jnp.mean(-q + lam[0] * (g - d1))
+
+    return f
+
+
+def _fd_grad(f, params, h=1e-6):
+    """Central finite differences of ``f`` at ``params`` (in float64), one coordinate at a time."""
+    flat, unravel = ravel_pytree(jax.tree.map(lambda x: x.astype(jnp.float64), params))
+    eye = jnp.eye(flat.size, dtype=flat.dtype) * h
+    fv = jax.jit(jax.vmap(lambda e: (f(unravel(flat + e)) - f(unravel(flat - e))) / (2 * h)))
+    return np.asarray(fv(eye))
+
+
+@pytest.fixture
+def setup(x64):
+    agent = _agent()
+    st = jax.tree.map(lambda x: x.astype(jnp.float64) if x.dtype == jnp.float32 else x, agent.init(jax.random.PRNGKey(3)))
+    obs = jax.random.normal(jax.random.PRNGKey(4), (6, 2, D))
+    lam = jnp.array([0.7, 1.3])
+    return agent, st, obs, lam
+
+
+def test_leader_gradient_goes_through_the_follower(setup):
+    agent, st, obs, lam = setup
+    grad = lambda through: ravel_pytree(jax.grad(
+        lambda a: agent.actor_losses(a, st.critics, lam, obs, through)[0][0])(st.actors)[0])[0]
+    g_stack, g_direct = np.asarray(grad(True)), np.asarray(grad(None))
+    np.testing.assert_array_equal(g_stack, g_direct)  # stackelberg=True is the default path
+    fd = _fd_grad(_leader_objective(agent, lam, obs, st.critics, st.actors[1]), st.actors[0])
+    np.testing.assert_allclose(g_stack, fd, rtol=1e-5, atol=1e-8)
+    g_naive = np.asarray(grad(False))  # ignores d mu2 / d a1
+    assert np.linalg.norm(g_naive - fd) > 0.05 * np.linalg.norm(fd)
+    # the naive gradient is the finite difference with the follower's action frozen at its current value
+    a2_fixed = agent.actor.apply(st.actors[1], jnp.concatenate([obs[:, 1], agent.actor.apply(st.actors[0], obs[:, 0])], -1))
+
+    def frozen(theta1):
+        a1 = agent.actor.apply(theta1, obs[:, 0])
+        q = _critic_ref(agent, st.critics, 0, 0, obs, a1, a2_fixed)
+        g = _critic_ref(agent, st.critics, 0, 1, obs, a1, a2_fixed)
+        return jnp.mean(-q + lam[0] * (g - agent.config.cost_threshold[0]))
+
+    np.testing.assert_allclose(g_naive, _fd_grad(frozen, st.actors[0]), rtol=1e-5, atol=1e-8)
+
+
+def test_follower_gradient_through_a2_only_and_no_cross_terms(setup):
+    agent, st, obs, lam = setup
+    grads = jax.grad(lambda a: jnp.sum(agent.actor_losses(a, st.critics, lam, obs)[0]))(st.actors)
+    a1 = agent.actor.apply(st.actors[0], obs[:, 0])
+    d2 = agent.config.cost_threshold[1]
+
+    def follower(theta2):  # the leader's action is given: theta2 acts through a2 only (p25)
+        a2 = agent.actor.apply(theta2, jnp.concatenate([obs[:, 1], a1], -1))
+        q = _critic_ref(agent, st.critics, 1, 0, obs, a1, a2)
+        g = _critic_ref(agent, st.critics, 1, 1, obs, a1, a2)
+        return jnp.mean(-q + lam[1] * (g - d2))
+
+    np.testing.assert_allclose(ravel_pytree(grads[1])[0], _fd_grad(follower, st.actors[1]), rtol=1e-5, atol=1e-8)
+    # the summed losses give theta1 exactly the leader's gradient: the follower's objective adds nothing to it
+    fd_leader = _fd_grad(_leader_objective(agent, lam, obs, st.critics, st.actors[1]), st.actors[0])
+    np.testing.assert_allclose(ravel_pytree(grads[0])[0], fd_leader, rtol=1e-5, atol=1e-8)
+    # critic parameters get no gradient from the actor losses
+    gc = jax.grad(lambda c: jnp.sum(agent.actor_losses(st.actors, c, lam, obs)[0]))(st.critics)
+    assert all(float(jnp.abs(x).max()) == 0.0 for x in jax.tree.leaves(gc))
+
+
+def test_plain_maddpg_follower_ignores_the_leader(x64):
+    agent = _agent(stackelberg=False, constrained=False, critic_input="own")
+    st = agent.init(jax.random.PRNGKey(0))
+    assert ravel_pytree(st.actors[1])[0].size == ravel_pytree(st.actors[0])[0].size  # both read 8 inputs
+    obs = jax.random.normal(jax.random.PRNGKey(1), (4, 2, D))
+    a = agent.greedy_act(st, obs)
+    np.testing.assert_allclose(a[:, 1], agent.actor.apply(st.actors[1], obs[:, 1]))
+    lam = jnp.zeros(2)
+    g = lambda t: ravel_pytree(jax.grad(lambda x: agent.actor_losses(x, st.critics, lam, obs, t)[0][0])(st.actors)[0])[0]
+    np.testing.assert_allclose(g(True), g(False))  # no path through mu2 exists
+    v = agent.actor_values(st.actors, st.critics, obs)
+    np.testing.assert_allclose(v[:, 1, 0], _critic_ref(agent, st.critics, 1, 0, obs, a[:, 0], a[:, 1]), rtol=1e-10)
+
+
+@pytest.mark.parametrize("boot_trunc", [True, False])
+def test_td_targets_use_target_actors_at_next_state_and_own_termination(x64, boot_trunc):
+    agent = _agent(bootstrap_on_truncation=boot_trunc, critic_input="own")
+    st = agent.init(jax.random.PRNGKey(0))
+    k = jax.random.split(jax.random.PRNGKey(1), 4)
+    shifted = jax.tree.map(lambda x: x + 0.1, st)  # make targets differ from the online networks
+    st = st.replace(target_actors=shifted.target_actors, target_critics=shifted.target_critics)
+    b = 5
+    batch = Transition(obs=jax.random.normal(k[0], (b, 2, D)), action=jax.random.uniform(k[1], (b, 2, 1), minval=-1),
+                       reward=jax.random.normal(k[2], (b, 2)), cost=jax.random.uniform(k[3], (b, 2)),
+                       next_obs=jax.random.normal(k[3], (b, 2, D)),
+                       terminated=jnp.array([[0, 0], [1, 0], [0, 1], [1, 1], [0, 0]], bool),
+                       truncated=jnp.array([0, 0, 0, 0, 1], bool))
+    y = np.asarray(agent.td_targets(st, batch))
+    a1 = agent.actor.apply(st.target_actors[0], batch.next_obs[:, 0])
+    a2 = agent.actor.apply(st.target_actors[1], jnp.concatenate([batch.next_obs[:, 1], a1], -1))
+    for i in range(2):
+        done = np.asarray(batch.terminated[:, i]) | (np.asarray(batch.truncated) & (not boot_trunc))
+        for kind, rc in ((0, batch.reward), (1, batch.cost)):
+            boot = _critic_ref(agent, st.target_critics, i, kind, batch.next_obs, a1, a2)
+            np.testing.assert_allclose(y[:, i, kind], rc[:, i] + 0.95 * (1 - done) * boot, rtol=1e-10)
+
+
+def test_soft_update_period_and_multiplier_in_update():
+    agent = _agent(lr_lambda=0.5, tau=0.01, target_update_every=3)
+    st = agent.init(jax.random.PRNGKey(0))
+    batch = jax.tree.map(lambda x: jnp.ones((8,) + x.shape, x.dtype), agent.transition_example())
+    upd = jax.jit(agent.update)
+    prev = st
+    for n in range(4):
+        new, info = upd(prev, batch, jax.random.PRNGKey(n))
+        flat = lambda t: ravel_pytree(t)[0]
+        if n in (0, 1, 2):  # updates 0..2 keep the targets (update 0 is excluded, as the authors')
+            np.testing.assert_array_equal(flat(new.target_critics), flat(prev.target_critics))
+        else:  # update 3: theta' <- 0.99 theta' + 0.01 theta, for critics and actors
+            for tgt, old, online in ((new.target_critics, prev.target_critics, new.critics),
+                                     (new.target_actors, prev.target_actors, new.actors)):
+                np.testing.assert_allclose(flat(tgt), 0.99 * flat(old) + 0.01 * flat(online), rtol=1e-5, atol=1e-7)
+        g_hat = np.asarray(info["g_actor"])  # dual ascent from the batch cost estimate at the actors' actions
+        d = np.array(agent.config.cost_threshold)
+        np.testing.assert_allclose(new.lam, np.clip(np.asarray(prev.lam) + 0.5 * (g_hat - d), 0, 100), rtol=1e-5,
+                                   atol=1e-6)
+        prev = new
+    assert int(prev.n_updates) == 4
+
+
+def test_exploration_schedule_and_greedy_limit():
+    agent = MADDPGAgent(MADDPGConfig(noise_min=(0.0, 0.05), eps_min=(0.02, 0.0)))
+    ex = agent.exploration(jnp.int32(150000))
+    np.testing.assert_allclose(ex["noise"], [0.1 - 0.075, 0.05], rtol=1e-6)
+    np.testing.assert_allclose(ex["eps"], [0.025, 0.025], rtol=1e-6)
+    ex = agent.exploration(jnp.int32(10**6))
+    np.testing.assert_allclose(ex["noise"], [0.0, 0.05])
+    np.testing.assert_allclose(ex["eps"], [0.02, 0.0])
+    st = agent.init(jax.random.PRNGKey(0))
+    obs = jax.random.normal(jax.random.PRNGKey(1), (7, 2, D))
+    zero = {"eps": jnp.zeros(2), "noise": jnp.zeros(2)}
+    np.testing.assert_allclose(agent.act(st, obs, jax.random.PRNGKey(2), zero), agent.greedy_act(st, obs))
+    wild = {"eps": jnp.array([0.5, 0.5]), "noise": jnp.array([10.0, 10.0])}
+    a = agent.act(st, obs, jax.random.PRNGKey(2), wild)
+    assert a.shape == (7, 2, 1) and float(jnp.abs(a).max()) <= 1.0
+
+
+def test_toy_problem_td_error_falls_and_actors_reach_the_stackelberg_optimum():
+    """One-step game (every transition terminal): r1 = -(a1 - 0.5)^2, r2 = -(a2 - a1/2)^2. Critics must fit the
+    rewards (TD error -> 0) and the actors must reach the closed-form Stackelberg solution a1 = 0.5, a2 = a1/2."""
+    agent = MADDPGAgent(MADDPGConfig(hidden_sizes=(32, 32), constrained=False, lr_actor=3e-3, lr_critic=3e-3,
+                                     target_update_every=1, tau=0.05))
+    st = agent.init(jax.random.PRNGKey(0))
+    n = 2048
+    k = jax.random.split(jax.random.PRNGKey(1), 2)
+    obs = jax.random.normal(k[0], (n, 2, D)) * 0.1
+    act = jax.random.uniform(k[1], (n, 2, 1), minval=-1, maxval=1)
+    rew = jnp.stack([-(act[:, 0, 0] - 0.5) ** 2, -(act[:, 1, 0] - act[:, 0, 0] / 2) ** 2], -1)
+    data = Transition(obs=obs, action=act, reward=rew, cost=jnp.zeros((n, 2)), next_obs=obs,
+                      terminated=jnp.ones((n, 2), bool), truncated=jnp.zeros((n,), bool))
+
+    def step(s, kk):
+        idx = jax.random.randint(kk, (128,), 0, n)
+        s, info = agent.update(s, jax.tree.map(lambda x: x[idx], data), kk)
+        return s, info["loss_q"].sum()
+
+    run = jax.jit(lambda s, kk: jax.lax.scan(step, s, jax.random.split(kk, 1500)))
+    st, losses = run(st, jax.random.PRNGKey(2))
+    assert float(losses[-100:].mean()) < 0.05 * float(losses[:10].mean())
+    a = agent.greedy_act(st, obs[:64])
+    np.testing.assert_allclose(a[:, 0, 0], 0.5, atol=0.08)
+    np.testing.assert_allclose(a[:, 1, 0], a[:, 0, 0] / 2, atol=0.08)
+
+
+# ---------------------------------------------------------------------------------------------------------------
+def test_registry_defaults_and_configs():
+    cs = load_config("intersection", "cs-maddpg")
+    assert (cs["lr_actor"], cs["lr_critic"], cs["gamma"], cs["tau"], cs["batch_size"], cs["warmup"]) == (
+        1e-4, 1e-3, 0.95, 0.01, 256, 512)
+    assert cs["cost_threshold"] == [5.0, 5.0] and cs["lambda_max"] == 100.0 and cs["total_steps"] == 20000
+    assert cs["noise_min"] == [0.0, 0.0]
+    rt = load_config("racetrack", "cs-maddpg")
+    assert rt["cost_threshold"] == [1.0, 1.0] and rt["total_steps"] == 500000
+    s = load_config("racetrack", "s-maddpg")
+    assert "cost_threshold" not in s and s["eps_min"] == [0.05, 0.05]
+    for algo in ("c-maddpg", "maddpg"):
+        load_config("intersection", algo)
+
+
+@pytest.mark.parametrize("scenario, algo, over, msg", [
+    ("merge", "cs-maddpg", {}, "continuous actions"),
+    ("intersection", "s-maddpg", {"cost_threshold": 1.0}, "is a key of .*cs-maddpg"),
+    ("intersection", "cs-maddpg", {"lambda_rule": "pid"}, "lambda_rule"),
+    ("intersection", "cs-maddpg", {"lambda_init": 5.0, "lambda_max": 1.0}, "lambda_init"),
+    ("intersection", "cs-maddpg", {"noise_start": -0.1}, "noise_start"),
+    ("intersection", "maddpg", {"eps_min": [0.1, 2.0]}, "probabilities"),
+    ("intersection", "maddpg", {"critic_input": "global"}, "critic_input"),
+    ("racetrack", "cs-maddpg", {"lr_actor": 0.0}, "lr_actor"),
+    ("racetrack", "maddpg", {"batch_size": 300, "total_steps": 200}, "batch_size"),
+])
+def test_validation_errors(scenario, algo, over, msg):
+    with pytest.raises(ValueError, match=msg):
+        load_config(scenario, algo, over)
+
+
+def test_config_errors_before_jax():
+    with pytest.raises(ValueError, match="critic_input"):
+        MADDPGConfig(critic_input="x")
+    with pytest.raises(ValueError, match="one value per agent"):
+        MADDPGConfig(cost_threshold=(1.0,))
+
+
+@pytest.mark.slow
+def test_short_training_run_end_to_end(tmp_path):
+    from train.run import run
+
+    cfg = load_config("intersection", "cs-maddpg", dict(num_seeds=2, total_steps=800, chunk_steps=400,
+                                                        checkpoint_every=400, eval_episodes=2, warmup=300,
+                                                        batch_size=32, hidden_sizes=[16]))
+    res = run(cfg, str(tmp_path / "r"), verbose=False)
+    st = res["state"].agent
+    assert int(st.n_updates[0]) == 800 - 300 + 1
+    assert np.all(np.isfinite(ravel_pytree(st.actors)[0]))
+    assert res["summary"]["finished"] and "eval" in res["summary"]
+    assert (tmp_path / "r" / "summary.json").exists()
