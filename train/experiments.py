@@ -46,18 +46,20 @@ DEFAULT_SEEDS = 10
 # Measured (shared 2-core CPU, 2026-11-23, --quick --only merge --only roundabout): 4 seeds x 4000 steps of merge
 # CSQ trained in 10 s, 4 x 3000 of roundabout in 8 s, plus ~15-20 s per run for compilation, evaluation and the
 # GIF; the budgets below (about 2.5x those) should take ~40-50 s per discrete run. The continuous algorithms were
-# not available when this was written: their budgets are placeholders of the same order -- time them and adjust.
+# CS-MADDPG measured on the same machine under load (load average 5): 4 seeds x 5000 steps trained in 87 s
+# (intersection) / 108 s (racetrack) plus ~20 s compilation, hence 2500 steps here (~65 s per run).
+# MAPPO-L / MACPO were not available when this was written: placeholders -- time them and adjust.
 QUICK: dict[tuple[str, str], dict] = {
     ("merge", "csq"): {"total_steps": 10000, "num_seeds": 5},
     ("merge", "sq"): {"total_steps": 10000, "num_seeds": 5},
     ("roundabout", "csq"): {"total_steps": 6000, "num_seeds": 5},
     ("roundabout", "sq"): {"total_steps": 6000, "num_seeds": 5},
-    ("intersection", "cs-maddpg"): {"total_steps": 5000, "num_seeds": 4},
-    ("intersection", "s-maddpg"): {"total_steps": 5000, "num_seeds": 4},
+    ("intersection", "cs-maddpg"): {"total_steps": 2500, "num_seeds": 4},
+    ("intersection", "s-maddpg"): {"total_steps": 2500, "num_seeds": 4},
     ("intersection", "mappo-l"): {"total_steps": 5000, "num_seeds": 4},
     ("intersection", "macpo"): {"total_steps": 5000, "num_seeds": 4},
-    ("racetrack", "cs-maddpg"): {"total_steps": 5000, "num_seeds": 4},
-    ("racetrack", "s-maddpg"): {"total_steps": 5000, "num_seeds": 4},
+    ("racetrack", "cs-maddpg"): {"total_steps": 2500, "num_seeds": 4},
+    ("racetrack", "s-maddpg"): {"total_steps": 2500, "num_seeds": 4},
     ("racetrack", "mappo-l"): {"total_steps": 5000, "num_seeds": 4},
     ("racetrack", "macpo"): {"total_steps": 5000, "num_seeds": 4},
 }

@@ -111,10 +111,12 @@ def plot_scenario(scenario: str, runs: dict[str, dict], out_base: str, n_bins: i
     panels = scenario_panels(scenario)
     ncols = max(len(RETURN_PANELS), len(panels) - len(RETURN_PANELS))
     fig, axes = plt.subplots(2, ncols, figsize=(4.2 * ncols, 6.6), squeeze=False)
-    for ax in axes.ravel()[len(panels):]:
-        ax.set_visible(False)
     positions = [(0, c) for c in range(len(RETURN_PANELS))] + \
                 [(1, c) for c in range(len(panels) - len(RETURN_PANELS))]
+    for r in range(2):
+        for c in range(ncols):
+            if (r, c) not in positions:
+                axes[r, c].set_visible(False)
     x_max = max([int(r["config"]["total_steps"]) for r in runs.values()] or [1])
     ref_drawn = False
     for (field, title), (r, c) in zip(panels, positions):
