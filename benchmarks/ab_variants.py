@@ -125,7 +125,7 @@ def main(argv=None):
 
     if args.x64:
         jax.config.update("jax_enable_x64", True)
-    sys.path.insert(0, args.dir)
+    sys.path[:0] = [args.dir, ROOT]  # ev_* copies, and the working tree's envs_jax for 'work'
     pkgs = {v: importlib.import_module("envs_jax" if v == "work" else f"ev_{v}") for v in args.variants}
     if args.check:
         import numpy as np

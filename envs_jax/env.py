@@ -303,7 +303,7 @@ class DrivingEnv:
         """Closest lane of each vehicle, its local coordinates and on-road flag, and the
         vehicle's local coordinates ``(s[2, L], lat[2, L])`` on every lane."""
         cost, s_all, lat_all = L.distance_with_heading_all(self.road.lanes, x, y, heading)
-        lane = jnp.argmin(cost, axis=-1).astype(jnp.int32)
+        lane = L.first_argmin(cost)
         s = jnp.take_along_axis(s_all, lane[..., None], axis=-1)[..., 0]
         lat = jnp.take_along_axis(lat_all, lane[..., None], axis=-1)[..., 0]
         lengths = self.road.lanes.col("length")[lane]

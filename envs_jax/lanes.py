@@ -306,6 +306,18 @@ def local_coordinates_all(lanes: LaneTable, px, py, with_heading: bool = True):
     return cat(parts_s), cat(parts_lat), cat(parts_h)
 
 
+def first_argmin(cost):
+    """``argmin`` over the last axis (first index on ties), as two plain reductions.
+
+    A minimum, then the smallest index attaining it: XLA's CPU backend vectorises
+    these, whereas ``argmin`` (a variadic reduction) runs as a scalar loop. (With a NaN
+    cost, which a valid state never has, it returns the last index.)
+    """
+    best = jnp.min(cost, axis=-1, keepdims=True)
+    index = jnp.arange(cost.shape[-1], dtype=jnp.int32)
+    return jnp.min(jnp.where(cost == best, index, cost.shape[-1] - 1), axis=-1)
+
+
 def distance_with_heading_all(lanes: LaneTable, px, py, heading):
     """``lane.distance_with_heading`` for every lane: |lat| + out-of-range s + |wrap(psi - psi_lane(s))|."""
     s, lat, lane_heading = local_coordinates_all(lanes, px, py)
