@@ -94,7 +94,8 @@ def sparse_map(fn, mask, *args):
     of the whole batch are packed into chunks of a fixed capacity, ``fn`` runs on
     those only, and the results are scattered back; a ``while_loop`` over chunks
     keeps it exact whatever the number of masked rows. Rows are independent, so the
-    result equals ``where(mask, vmap(fn)(*args), 0)`` bit for bit.
+    result equals ``where(mask, vmap(fn)(*args), 0)`` up to XLA compiling ``fn``'s
+    arithmetic differently (an ulp at most; tests/test_sparse_map.py).
     """
     vfn = jax.vmap(fn)
 
