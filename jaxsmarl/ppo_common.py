@@ -1,0 +1,136 @@
+"""Building blocks shared by MAPPO-L and MACPO (baselines.md §2.2, §2.7): networks, the Gaussian policy,
+running normalisers and the critic loss.
+
+* :class:`MLP`: the reference ``MLPBase`` (MACPO-repo ``algorithms/utils/mlp.py``): ``LayerNorm(obs)`` (feature
+  normalisation) -> ``Linear + ReLU + LayerNorm`` -> ``layer_n x [Linear + ReLU + LayerNorm]`` -> linear head;
+  orthogonal weights with the ReLU gain sqrt(2), zero biases, head gain 0.01 for the policy and 1 for critics.
+* Gaussian policy with a state-independent bounded standard deviation (``DiagGaussian``):
+  ``std = sigmoid(log_std / x_coef) * y_coef``, ``log_std`` initialised to ``x_coef`` (std 0.5 sigmoid(1) = 0.37).
+* :class:`RunningStats`: running mean / variance (Chan et al.'s parallel update), used for the observation
+  normalisation and for the value-target normalisation (the reference's ValueNorm; one per critic here instead
+  of the reference's shared reward normaliser, a documented deviation).
+* :func:`value_loss`: clipped value loss with the Huber loss (clip 0.2, delta 10; §2.3 step 4).
+"""
+
+from __future__ import annotations
+
+import math
+
+import flax.linen as nn
+import flax.struct
+import jax
+import jax.numpy as jnp
+
+__all__ = ["MLP", "std_from_param", "gaussian_log_prob", "gaussian_entropy", "gaussian_kl", "RunningStats",
+           "huber", "value_loss", "masked_mean", "standardize"]
+
+
+class MLP(nn.Module):
+    """The reference actor/critic trunk with a linear head of ``out_dim`` outputs."""
+
+    hidden: int = 64
+    layer_n: int = 1
+    out_dim: int = 1
+    out_gain: float = 1.0
+    feature_norm: bool = True
+
+    @nn.compact
+    def __call__(self, x):
+        relu_gain = math.sqrt(2.0)
+        if self.feature_norm:
+            x = nn.LayerNorm(epsilon=1e-5)(x)
+        for _ in range(1 + self.layer_n):
+            x = nn.Dense(self.hidden, kernel_init=nn.initializers.orthogonal(relu_gain),
+                         bias_init=nn.initializers.zeros)(x)
+            x = nn.LayerNorm(epsilon=1e-5)(nn.relu(x))
+        return nn.Dense(self.out_dim, kernel_init=nn.initializers.orthogonal(self.out_gain),
+                        bias_init=nn.initializers.zeros)(x)
+
+
+def std_from_param(log_std, x_coef: float, y_coef: float):
+    """``sigmoid(log_std / x_coef) * y_coef``: bounded in (0, y_coef)."""
+    return jax.nn.sigmoid(log_std / x_coef) * y_coef
+
+
+def gaussian_log_prob(action, mean, std):
+    """Log-density of a diagonal Gaussian, summed over the last (action) axis."""
+    z = (action - mean) / std
+    return jnp.sum(-0.5 * z * z - jnp.log(std) - 0.5 * math.log(2.0 * math.pi), axis=-1)
+
+
+def gaussian_entropy(std):
+    return jnp.sum(0.5 + 0.5 * math.log(2.0 * math.pi) + jnp.log(std), axis=-1)
+
+
+def gaussian_kl(mean_old, std_old, mean, std):
+    """``KL(old || new) = log(s/s_old) + (s_old^2 + (m_old - m)^2) / (2 s^2) - 1/2`` summed over action dims
+    (with the reference's 1e-8). safepo's ``kl_divergence`` writes ``log(s_old) - log(s)``, which is not a KL
+    (its gradient in s does not vanish at s = s_old); we use the true divergence, whose Hessian there is the
+    Fisher matrix."""
+    kl = (jnp.log(std) - jnp.log(std_old) + (std_old ** 2 + (mean_old - mean) ** 2) / (1e-8 + 2.0 * std ** 2)
+          - 0.5)
+    return jnp.sum(kl, axis=-1)
+
+
+@flax.struct.dataclass
+class RunningStats:
+    """Running mean and variance over a batch axis, per element of ``mean.shape``."""
+
+    count: jax.Array
+    mean: jax.Array
+    var: jax.Array
+
+    @classmethod
+    def create(cls, shape, dtype=None):
+        dtype = dtype or jnp.zeros(()).dtype
+        return cls(jnp.zeros(shape, dtype), jnp.zeros(shape, dtype), jnp.ones(shape, dtype))
+
+    def update(self, x, mask=None):
+        """Merge the samples ``x[..., *shape]`` (leading axes are samples). ``mask`` (per sample, or per
+        element like ``x``) selects what is merged; counts are kept per element."""
+        lead = x.ndim - self.mean.ndim
+        axes = tuple(range(lead))
+        w = jnp.ones(x.shape, x.dtype) if mask is None else jnp.asarray(mask, x.dtype)
+        w = jnp.broadcast_to(w.reshape(w.shape + (1,) * (x.ndim - w.ndim)), x.shape)
+        n = jnp.sum(w, axis=axes)
+        n_b = jnp.maximum(n, 1.0)
+        m_b = jnp.sum(w * x, axis=axes) / n_b
+        v_b = jnp.sum(w * (x - m_b) ** 2, axis=axes) / n_b
+        tot = self.count + n
+        frac = n / jnp.maximum(tot, 1.0)
+        delta = m_b - self.mean
+        mean = self.mean + delta * frac
+        m2 = self.var * self.count + v_b * n + delta ** 2 * self.count * frac
+        var = jnp.where(tot > 0, m2 / jnp.maximum(tot, 1.0), self.var)
+        return RunningStats(tot, mean, var)
+
+    def normalize(self, x, clip: float = 10.0):
+        y = (x - self.mean) / jnp.sqrt(self.var + 1e-8)
+        return jnp.clip(y, -clip, clip)
+
+    def denormalize(self, y):
+        return y * jnp.sqrt(self.var + 1e-8) + self.mean
+
+
+def huber(e, delta: float):
+    a = jnp.abs(e)
+    return jnp.where(a <= delta, 0.5 * e * e, delta * (a - 0.5 * delta))
+
+
+def masked_mean(x, mask):
+    mask = jnp.asarray(mask, x.dtype)
+    return jnp.sum(x * mask) / jnp.maximum(jnp.sum(mask), 1.0)
+
+
+def value_loss(pred, old_pred, target, mask, clip: float, delta: float):
+    """``max(huber(target - v), huber(target - v_clipped))``, ``v_clipped = v_old + clip(v - v_old, +-clip)``."""
+    clipped = old_pred + jnp.clip(pred - old_pred, -clip, clip)
+    loss = jnp.maximum(huber(target - pred, delta), huber(target - clipped, delta))
+    return masked_mean(loss, mask)
+
+
+def standardize(x, mask, eps: float = 1e-5):
+    """``(x - mean) / (std + eps)`` over the entries where ``mask`` (the reference's advantage standardisation)."""
+    m = masked_mean(x, mask)
+    var = masked_mean((x - m) ** 2, mask)
+    return (x - m) / (jnp.sqrt(var) + eps)
