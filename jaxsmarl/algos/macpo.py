@@ -1,0 +1,91 @@
+"""MACPO (Gu et al. 2023; baselines.md §2.4): a constrained trust-region step of one agent per minibatch.
+
+For each of ``num_minibatches`` minibatches (one pass, no epochs), agent i:
+
+1. reward and cost critics: one clipped-Huber regression step each;
+2. ``c = (J_c - d)(1 - gamma)`` (``0 -> 1e-8``);
+3. ``g = grad[-mean(ratio factor A_r)]``, ``b = grad mean(ratio factor A_c)`` w.r.t. the flat actor parameters
+   (the network and ``log_std``);
+4. ``H^-1 g``, ``H^-1 b`` by conjugate gradient with Fisher-vector products of the mean KL (damping 0.1);
+5. the CPO direction (:func:`jaxsmarl.cpo.cpo_direction`);
+6. the line search (:func:`jaxsmarl.cpo.line_search`): accept a candidate if ``KL < delta``, the reward loss
+   improved (only when ``optim_case > 1``) and the cost surrogate grew by at most ``max(-c, 0)``.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+from jax.flatten_util import ravel_pytree
+
+from jaxsmarl import cpo
+from jaxsmarl import ppo_common as pc
+from jaxsmarl.algos.ppo_base import PPOBase, PPOState
+
+__all__ = ["MACPO"]
+
+
+class MACPO(PPOBase):
+    def cpo_step(self, actor, o, a, lo, ar, ac, f, m, jc):
+        """One CPO update of an actor on a minibatch: ``(new actor, info)``."""
+        cfg = self.config
+        theta, unravel = ravel_pytree(actor)
+
+        def surrogates(th):
+            mean, std = self.policy(unravel(th), o)
+            ratio = jnp.exp(pc.gaussian_log_prob(a, mean, std) - lo)
+            return -pc.masked_mean(ratio * f * ar, m), pc.masked_mean(ratio * f * ac, m)
+
+        reward_loss, g = jax.value_and_grad(lambda th: surrogates(th)[0])(theta)
+        cost_loss, b = jax.value_and_grad(lambda th: surrogates(th)[1])(theta)
+        mean_old, std_old = jax.lax.stop_gradient(self.policy(actor, o))
+
+        def kl(th):
+            mean, std = self.policy(unravel(th), o)
+            return pc.masked_mean(pc.gaussian_kl(mean_old, std_old, mean, jnp.broadcast_to(std, mean.shape)), m)
+
+        fvp = lambda v: cpo.fisher_vector_product(kl, theta, v, cfg.fvp_damping)
+        hinv_g = cpo.conjugate_gradient(fvp, g, cfg.cg_iters)
+        hinv_b = cpo.conjugate_gradient(fvp, b, cfg.cg_iters)
+        c = (jc - cfg.cost_limit) * (1.0 - cfg.gamma)
+        c = jnp.where(c == 0, 1e-8, c)
+        x, case, lam, nu = cpo.cpo_direction(g, b, hinv_g, hinv_b, c, cfg.kl_threshold)
+
+        def evaluate(th):
+            r_new, c_new = surrogates(th)
+            return {"reward_loss": r_new, "cost_loss": c_new, "kl": kl(th)}
+
+        def accept(s):
+            improve = jnp.where(case > 1, s["reward_loss"] - reward_loss < 0, True)
+            return (s["kl"] < cfg.kl_threshold) & improve & (s["cost_loss"] - cost_loss <= jnp.maximum(-c, 0.0))
+
+        theta_new, found, idx, stats = cpo.line_search(theta, x, evaluate, accept, cfg.ls_steps, cfg.ls_fraction,
+                                                       cfg.fraction_coef)
+        info = {"case": jax.nn.one_hot(case, 5, dtype=theta.dtype), "accepted": found.astype(theta.dtype),
+                "kl": jnp.where(found, stats["kl"][idx], 0.0), "reward_loss": reward_loss}
+        return unravel(theta_new), info
+
+    def agent_update(self, state: PPOState, i, batch, factor, key):
+        cfg = self.config
+        ix = self.index
+        obs, action, logp_old = batch.obs[i], batch.action[i], batch.logp[i]
+        adv_r, adv_c = batch.adv[i, 0], batch.adv[i, 1]
+        target, old_value, active = batch.target[i], batch.old_value[i], batch.active[i]
+        jc = state.episode_cost[i]
+
+        def minibatch(carry, idx):
+            actor, critic, c_opt = carry
+            critic, c_opt, vl = self.critic_step(critic, c_opt, batch.share[idx], target[:, idx],
+                                                 old_value[:, idx], active[idx])
+            actor, info = self.cpo_step(actor, *(x[idx] for x in (obs, action, logp_old, adv_r, adv_c, factor,
+                                                                  active)), jc)
+            info["value_loss"] = vl
+            return (actor, critic, c_opt), info
+
+        idxs = self.minibatch_indices(key, obs.shape[0], cfg.num_minibatches)
+        (actor, critic, c_opt), infos = jax.lax.scan(
+            minibatch, (ix(state.actor, i), ix(state.critic, i), ix(state.critic_opt, i)), idxs)
+        st = self.set_index
+        state = state.replace(actor=st(state.actor, i, actor), critic=st(state.critic, i, critic),
+                              critic_opt=st(state.critic_opt, i, c_opt))
+        return state, jax.tree.map(lambda x: jnp.mean(x, axis=0), infos)

@@ -1,0 +1,288 @@
+"""The part of MAPPO-L and MACPO that does not depend on the actor update (baselines.md §2.2).
+
+Per agent i: a Gaussian actor ``pi_i(a | o_i)`` and a centralised reward critic ``V_i(s)`` and cost critic
+``V^c_i(s)`` on the shared observation ``s = concat(o_1, ..., o_n)`` (normalised). All agents' networks are
+stacked along a leading agent axis (critics ``[n_agents, 2 (reward, cost)]``) with one Adam state per network.
+
+One update (:meth:`PPOBase.update`) on a rollout ``traj`` (fields ``[T, E, ...]``, see
+:class:`train.onpolicy.Transition`):
+
+1. values of ``s_t`` and of ``s'_t`` (pre-reset), GAE for rewards and costs per agent (:func:`jaxsmarl.gae.gae`,
+   per-agent termination vs truncation), value-target normalisers updated, advantages standardised per agent
+   over the active samples (an agent is *active* at step t until its own termination in the episode; steps of a
+   terminated agent that is still simulated are masked out of every loss);
+2. the constraint's episode cost ``J_c``: over the episodes that ended in this rollout, the per-step cost
+   averaged over agents summed over the episode (``per_agent_cost``: each agent's own), else the last value;
+3. agents updated in a random order (``sequential``, HAPPO-style): each surrogate is weighted by ``factor``,
+   the product of the previously updated agents' ratios ``pi_new / pi_old`` on the buffer; with
+   ``sequential=False`` the factor stays 1 (a simultaneous update: the agents' updates are then independent);
+4. the observation normaliser absorbs the rollout (after the update, so that the update sees the rollout's own
+   normalisation and the ratios start at 1).
+
+The actor update of one agent is the subclass's :meth:`agent_update`.
+"""
+
+from __future__ import annotations
+
+import abc
+import dataclasses
+from typing import Any
+
+import flax.struct
+import jax
+import jax.numpy as jnp
+import optax
+
+from jaxsmarl import ppo_common as pc
+from jaxsmarl.gae import gae
+
+__all__ = ["PPOConfig", "PPOState", "Batch", "PPOBase"]
+
+R, C = 0, 1  # kind axis of the critics: reward, cost
+
+
+@dataclasses.dataclass(frozen=True)
+class PPOConfig:
+    """Static hyper-parameters (defaults: MACPO-repo Ant-2x4 scripts, baselines.md §2.6)."""
+
+    n_agents: int = 2
+    obs_dim: int = 8
+    action_dim: int = 1
+    hidden: int = 64
+    layer_n: int = 1
+    feature_norm: bool = True
+    obs_norm: bool = True
+    value_norm: bool = True
+    std_x_coef: float = 1.0
+    std_y_coef: float = 0.5
+    gamma: float = 0.99
+    gae_lambda: float = 0.95
+    actor_lr: float = 9e-5
+    critic_lr: float = 5e-3
+    adam_eps: float = 1e-5
+    clip: float = 0.2
+    value_clip: float = 0.2
+    huber_delta: float = 10.0
+    value_loss_coef: float = 1.0
+    max_grad_norm: float = 10.0
+    entropy_coef: float = 0.01
+    ppo_epochs: int = 5
+    num_minibatches: int = 40
+    cost_limit: float = 0.2
+    per_agent_cost: bool = False
+    sequential: bool = True
+    # MAPPO-L
+    lambda_init: float = 0.78
+    lambda_lr: float = 1e-7
+    # MACPO
+    kl_threshold: float = 0.0065
+    cg_iters: int = 10
+    ls_steps: int = 10
+    ls_fraction: float = 0.5
+    fraction_coef: float = 0.27
+    fvp_damping: float = 0.1
+
+    @property
+    def share_dim(self) -> int:
+        return self.n_agents * self.obs_dim
+
+
+@flax.struct.dataclass
+class PPOState:
+    actor: Any  # {"net": MLP params, "log_std": [k]}, stacked [n_agents, ...]
+    critic: Any  # MLP params stacked [n_agents, 2, ...]
+    actor_opt: Any  # stacked [n_agents, ...] (MAPPO-L; unused by MACPO)
+    critic_opt: Any  # stacked [n_agents, 2, ...]
+    obs_stats: pc.RunningStats  # [n_agents, obs_dim]
+    value_stats: pc.RunningStats  # [n_agents, 2]
+    lagrange: jax.Array  # [n_agents] MAPPO-L multipliers
+    episode_cost: jax.Array  # [n_agents] J_c of the last rollout with finished episodes
+
+
+@flax.struct.dataclass
+class Batch:
+    """One rollout flattened to ``B = T * E`` samples, agent axis first."""
+
+    obs: jax.Array  # [N, B, D] normalised own observations
+    share: jax.Array  # [B, N * D] normalised shared observation
+    action: jax.Array  # [N, B, k]
+    logp: jax.Array  # [N, B] behaviour log-probabilities
+    adv: jax.Array  # [N, 2, B] standardised reward / cost advantages
+    target: jax.Array  # [N, 2, B] value targets (normalised)
+    old_value: jax.Array  # [N, 2, B] rollout value predictions (normalised)
+    active: jax.Array  # [N, B]
+
+
+def _index(tree, i):
+    return jax.tree.map(lambda x: x[i], tree)
+
+
+def _set(tree, i, new):
+    return jax.tree.map(lambda x, y: x.at[i].set(y), tree, new)
+
+
+class PPOBase(abc.ABC):
+    """Shared on-policy agent: init, acting, critics, rollout preparation and the agent-sequential driver."""
+
+    def __init__(self, config: PPOConfig):
+        self.config = cfg = config
+        self.actor_net = pc.MLP(cfg.hidden, cfg.layer_n, cfg.action_dim, 0.01, cfg.feature_norm)
+        self.critic_net = pc.MLP(cfg.hidden, cfg.layer_n, 1, 1.0, cfg.feature_norm)
+        self.actor_tx = optax.chain(optax.clip_by_global_norm(cfg.max_grad_norm),
+                                    optax.adam(cfg.actor_lr, eps=cfg.adam_eps))
+        self.critic_tx = optax.chain(optax.clip_by_global_norm(cfg.max_grad_norm),
+                                     optax.adam(cfg.critic_lr, eps=cfg.adam_eps))
+
+    # ------------------------------------------------------------------------------------------------------
+    def init(self, key) -> PPOState:
+        cfg = self.config
+        n = cfg.n_agents
+        ka, kc = jax.random.split(key)
+        dtype = jnp.zeros(()).dtype
+
+        def actor_init(k):
+            net = self.actor_net.init(k, jnp.zeros((1, cfg.obs_dim), dtype))
+            return {"net": net, "log_std": jnp.full((cfg.action_dim,), cfg.std_x_coef, dtype)}
+
+        actor = jax.vmap(actor_init)(jax.random.split(ka, n))
+        critic = jax.vmap(jax.vmap(lambda k: self.critic_net.init(k, jnp.zeros((1, cfg.share_dim), dtype))))(
+            jax.random.split(kc, (n, 2)))
+        return PPOState(
+            actor=actor, critic=critic, actor_opt=jax.vmap(self.actor_tx.init)(actor),
+            critic_opt=jax.vmap(jax.vmap(self.critic_tx.init))(critic),
+            obs_stats=pc.RunningStats.create((n, cfg.obs_dim), dtype),
+            value_stats=pc.RunningStats.create((n, 2), dtype),
+            lagrange=jnp.full((n,), cfg.lambda_init, dtype), episode_cost=jnp.zeros((n,), dtype))
+
+    # ------------------------------------------------------------------------------------------------------
+    def normalize_obs(self, state: PPOState, obs):
+        """``obs [..., N, D]`` -> normalised (identity when ``obs_norm`` is off)."""
+        return state.obs_stats.normalize(obs) if self.config.obs_norm else obs
+
+    def policy(self, actor_i, obs_n):
+        """Mean ``[..., k]`` and std ``[k]`` of one agent's Gaussian on normalised observations."""
+        cfg = self.config
+        mean = self.actor_net.apply(actor_i["net"], obs_n)
+        return mean, pc.std_from_param(actor_i["log_std"], cfg.std_x_coef, cfg.std_y_coef)
+
+    def _all_means(self, state, obs_n):
+        """``obs_n [B, N, D]`` -> means ``[B, N, k]``, stds ``[N, k]``."""
+        mean, std = jax.vmap(self.policy, in_axes=(0, 1), out_axes=(1, 0))(state.actor, obs_n)
+        return mean, std
+
+    def act(self, state: PPOState, obs, key):
+        """Sample ``[E, N, k]`` actions (unbounded Gaussian; the env clips to [-1, 1]) and their log-probs."""
+        mean, std = self._all_means(state, self.normalize_obs(state, obs))
+        action = mean + std * jax.random.normal(key, mean.shape, mean.dtype)
+        return action, pc.gaussian_log_prob(action, mean, std)
+
+    def greedy_act(self, state: PPOState, obs):
+        """The Gaussian mean, clipped to the action box, for one ``[N, D]`` observation."""
+        mean, _ = self._all_means(state, self.normalize_obs(state, obs)[None])
+        return jnp.clip(mean[0], -1.0, 1.0)
+
+    def values(self, critic, value_stats, share):
+        """Denormalised ``[..., N, 2]`` values of every critic at ``share [..., N*D]``."""
+        flat = share.reshape((-1, share.shape[-1]))
+        out = jax.vmap(jax.vmap(lambda p: self.critic_net.apply(p, flat)[:, 0]))(critic)  # [N, 2, B]
+        out = jnp.moveaxis(out, -1, 0).reshape(share.shape[:-1] + out.shape[:2])
+        return value_stats.denormalize(out) if self.config.value_norm else out
+
+    # ------------------------------------------------------------------------------------------------------
+    def prepare(self, state: PPOState, traj):
+        """GAE, normalisers, standardised advantages and ``J_c``: ``(state, Batch)`` (steps 1-2 above)."""
+        cfg = self.config
+        T, E, N, D = traj.obs.shape
+        obs_n = self.normalize_obs(state, traj.obs)
+        next_n = self.normalize_obs(state, traj.next_obs)
+        share, next_share = obs_n.reshape(T, E, N * D), next_n.reshape(T, E, N * D)
+        v = self.values(state.critic, state.value_stats, share)  # [T, E, N, 2]
+        v_next = self.values(state.critic, state.value_stats, next_share)
+        rc = jnp.stack([traj.reward, traj.cost], -1).astype(v.dtype)  # [T, E, N, 2]
+        term = jnp.broadcast_to(traj.terminated[..., None], rc.shape)
+        adv, ret = gae(rc, v, v_next, term, traj.done[:, :, None, None], cfg.gamma, cfg.gae_lambda)
+        active = traj.active  # [T, E, N]
+        mask2 = jnp.broadcast_to(active[..., None], rc.shape)
+        value_stats = state.value_stats.update(ret.reshape(-1, N, 2), mask2.reshape(-1, N, 2)) \
+            if cfg.value_norm else state.value_stats
+        norm = (lambda x: value_stats.normalize(x, clip=jnp.inf)) if cfg.value_norm else (lambda x: x)
+        target, old_value = norm(ret), norm(v)
+
+        B = T * E
+        flat = lambda x: jnp.moveaxis(x.reshape((B,) + x.shape[2:]), 1, 0)  # [T, E, N, ...] -> [N, B, ...]
+        adv_f, active_f = flat(adv), flat(active)  # [N, B, 2], [N, B]
+        adv_f = jax.vmap(jax.vmap(pc.standardize, in_axes=(1, None), out_axes=0))(adv_f, active_f)  # [N, 2, B]
+        batch = Batch(obs=flat(obs_n), share=share.reshape(B, N * D), action=flat(traj.action),
+                      logp=flat(traj.logp), adv=adv_f, target=jnp.moveaxis(flat(target), -1, 1),
+                      old_value=jnp.moveaxis(flat(old_value), -1, 1), active=active_f)
+
+        # J_c over the episodes that ended in this rollout (baselines.md §2.2, aver_episode_costs).
+        ended = traj.ep_returned.astype(v.dtype)  # [T, E]
+        n_ended = jnp.sum(ended)
+        ep_cost = traj.ep_cost.astype(v.dtype)  # [T, E, N]
+        per_agent = jnp.sum(ended[..., None] * ep_cost, axis=(0, 1)) / jnp.maximum(n_ended, 1.0)
+        jc = per_agent if cfg.per_agent_cost else jnp.full((N,), jnp.mean(per_agent), v.dtype)
+        jc = jnp.where(n_ended > 0, jc, state.episode_cost)
+        return state.replace(value_stats=value_stats, episode_cost=jc), batch
+
+    # ------------------------------------------------------------------------------------------------------
+    def critic_step(self, critic_i, opt_i, share, target, old_value, active):
+        """One clipped-Huber regression step of agent i's reward and cost critics (separate Adams, grad clips)."""
+        cfg = self.config
+
+        def one(p, o, tgt, old):
+            def loss(p):
+                pred = self.critic_net.apply(p, share)[:, 0]
+                return cfg.value_loss_coef * pc.value_loss(pred, old, tgt, active, cfg.value_clip, cfg.huber_delta)
+
+            val, grads = jax.value_and_grad(loss)(p)
+            upd, o = self.critic_tx.update(grads, o, p)
+            return optax.apply_updates(p, upd), o, val
+
+        return jax.vmap(one)(critic_i, opt_i, target, old_value)
+
+    def log_prob(self, actor_i, obs, action):
+        mean, std = self.policy(actor_i, obs)
+        return pc.gaussian_log_prob(action, mean, std)
+
+    @abc.abstractmethod
+    def agent_update(self, state: PPOState, i, batch: Batch, factor, key):
+        """Update agent ``i``'s actor and critics; returns ``(state, info)`` (MAPPO-L, MACPO)."""
+
+    def update(self, state: PPOState, traj, key):
+        """One on-policy update on ``traj``: ``(state, info)`` (steps 1-4 of the module docstring)."""
+        cfg = self.config
+        state, batch = self.prepare(state, traj)
+        k_order, k_agents = jax.random.split(key)
+        order = (jax.random.permutation(k_order, cfg.n_agents) if cfg.sequential
+                 else jnp.arange(cfg.n_agents))
+
+        def per_agent(carry, x):
+            st, factor = carry
+            i, k = x
+            st, info = self.agent_update(st, i, batch, factor, k)
+            if cfg.sequential:
+                new_logp = self.log_prob(_index(st.actor, i), batch.obs[i], batch.action[i])
+                ratio = jnp.where(batch.active[i], jnp.exp(new_logp - batch.logp[i]), 1.0)
+                factor = factor * jax.lax.stop_gradient(ratio)
+            return (st, factor), (i, info)
+
+        factor0 = jnp.ones(batch.logp.shape[1], batch.logp.dtype)
+        (state, _), (idx, infos) = jax.lax.scan(per_agent, (state, factor0),
+                                                 (order, jax.random.split(k_agents, cfg.n_agents)))
+        # infos are in update order; put them in agent order.
+        infos = jax.tree.map(lambda x: jnp.zeros_like(x).at[idx].set(x), infos)
+        if cfg.obs_norm:
+            state = state.replace(obs_stats=state.obs_stats.update(traj.obs.reshape((-1,) + traj.obs.shape[2:])))
+        infos["episode_cost"] = state.episode_cost
+        infos["order"] = order
+        return state, infos
+
+    # helpers for the subclasses
+    index = staticmethod(_index)
+    set_index = staticmethod(_set)
+
+    @staticmethod
+    def minibatch_indices(key, n: int, num_minibatches: int):
+        """A random partition of ``range(n)`` into ``[num_minibatches, n // num_minibatches]``."""
+        return jax.random.permutation(key, n).reshape(num_minibatches, n // num_minibatches)
