@@ -82,6 +82,10 @@ def test_resume_is_bit_identical(tmp_path, small_config):
     with open(tmp_path / "a" / "episodes.csv") as fa, open(tmp_path / "b" / "episodes.csv") as fb:
         assert fa.read() == fb.read()
     assert int(np.asarray(resumed["state"].iteration)[0]) == 800
+    # the run's time adds up over both segments
+    t_part, t_res = part["summary"]["timing"], resumed["summary"]["timing"]
+    assert t_res["segments"] == 2 and straight["summary"]["timing"]["segments"] == 1
+    assert t_res["train_s_total"] == pytest.approx(t_part["train_s"] + t_res["train_s"])
 
 
 def test_resume_and_overwrite_guards(tmp_path, small_config):

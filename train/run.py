@@ -144,9 +144,11 @@ def run(config: dict, out: str, *, resume: bool = False, overwrite: bool = False
     state = prog["init"](seed_keys(config))
     done_chunks = 0
     log = metrics.EpisodeLog(S)
+    prev = {"train_s_total": 0.0, "compile_s_total": 0.0, "segments": 0}  # earlier segments of a resumed run
     if resume:
         state, meta = ckpt.restore(None, state)
         done_chunks = int(meta["chunks_done"])
+        prev = {k: meta.get(k, v) for k, v in prev.items()}
         if os.path.exists(csv_path):
             log = metrics.EpisodeLog.read_csv(csv_path, S)
         log.truncate(int(meta["env_steps"]))  # episodes logged after the checkpoint are replayed
@@ -181,7 +183,9 @@ def run(config: dict, out: str, *, resume: bool = False, overwrite: bool = False
         n_run += 1
         new = log.add_steps(m["episode"], start_iter, E)
         env_steps = (start_iter + n_iter) * E
-        last_meta = {"chunks_done": c + 1, "env_steps": env_steps}
+        last_meta = {"chunks_done": c + 1, "env_steps": env_steps,
+                     "train_s_total": prev["train_s_total"] + train_s,
+                     "compile_s_total": prev["compile_s_total"] + compile_s, "segments": prev["segments"] + 1}
         is_last = c == trainer.n_chunks - 1
         if is_last or (ckpt_every_chunks and (c + 1) % ckpt_every_chunks == 0) or (
                 max_chunks is not None and n_run >= max_chunks):
@@ -201,7 +205,10 @@ def run(config: dict, out: str, *, resume: bool = False, overwrite: bool = False
 
     timing = {"setup_s": setup_s, "compile_s": compile_s, "train_s": train_s, "env_steps_run": steps_run,
               "env_steps_per_s_per_seed": steps_run / max(train_s, 1e-9),
-              "env_steps_per_s_all_seeds": S * steps_run / max(train_s, 1e-9)}
+              "env_steps_per_s_all_seeds": S * steps_run / max(train_s, 1e-9),
+              # over every segment of a resumed run (checkpoint metadata carries the totals)
+              "train_s_total": prev["train_s_total"] + train_s, "compile_s_total": prev["compile_s_total"] + compile_s,
+              "segments": prev["segments"] + (1 if steps_run else 0)}
     summary_path = os.path.join(out, "summary.json")
     if steps_run == 0 and os.path.exists(summary_path):  # resumed an already finished run: keep its timing
         with open(summary_path) as f:
