@@ -262,16 +262,9 @@ def _write_json(path: str, obj) -> None:
 
 
 def _parse_set(items) -> dict:
-    out = {}
-    for item in items:
-        if "=" not in item:
-            raise ValueError(f"--set expects KEY=VALUE, got {item!r}")
-        k, v = item.split("=", 1)
-        try:
-            out[k.strip()] = json.loads(v)
-        except json.JSONDecodeError:
-            out[k.strip()] = v
-    return out
+    from train.__main__ import _parse_set as parse
+
+    return parse(items)
 
 
 def parse_args(argv=None):

@@ -36,7 +36,8 @@ import jax.numpy as jnp
 
 from jaxsmarl import buffers, metrics
 
-__all__ = ["RunnerState", "Trainer", "make_env", "make_train", "make_offpolicy_train", "make_evaluate", "seed_keys"]
+__all__ = ["RunnerState", "Trainer", "make_env", "make_train", "make_offpolicy_train", "make_evaluate",
+           "make_train_fn", "seed_keys"]
 
 
 @flax.struct.dataclass
@@ -82,6 +83,22 @@ def make_train(config: dict, env=None) -> Trainer:
     from train.config import spec
 
     return spec(config["algo"]).make_train(config, env)
+
+
+def make_train_fn(init: Callable, run_chunk: Callable, run_tail: Callable | None, n_full: int,
+                  chunk_iters: int) -> Callable:
+    """``train(key) -> (state, metrics)``: ``init`` then every chunk (and the tail), metrics over all iterations."""
+
+    def train(key):
+        rs = init(key)
+        rs, m = jax.lax.scan(lambda s, c: run_chunk(s, c * chunk_iters), rs, jnp.arange(n_full))
+        m = jax.tree.map(lambda x: x.reshape((-1,) + x.shape[2:]), m)
+        if run_tail is not None:
+            rs, m2 = run_tail(rs, n_full * chunk_iters)
+            m = jax.tree.map(lambda a, b: jnp.concatenate([a, b]), m, m2)
+        return rs, m
+
+    return train
 
 
 def make_evaluate(wrapped, params, act: Callable, episodes: int, max_steps: int) -> Callable:
@@ -179,14 +196,7 @@ def make_offpolicy_train(config: dict, env, agent) -> Trainer:
     run_chunk = make_chunk(chunk_iters)
     run_tail = make_chunk(tail) if tail else None
 
-    def train(key):
-        rs = init(key)
-        rs, m = jax.lax.scan(lambda s, c: run_chunk(s, c * chunk_iters), rs, jnp.arange(n_full))
-        m = jax.tree.map(lambda x: x.reshape((-1,) + x.shape[2:]), m)
-        if run_tail is not None:
-            rs, m2 = run_tail(rs, n_full * chunk_iters)
-            m = jax.tree.map(lambda a, b: jnp.concatenate([a, b]), m, m2)
-        return rs, m
+    train = make_train_fn(init, run_chunk, run_tail, n_full, chunk_iters)
 
     evaluate = make_evaluate(wrapped, params, agent.greedy_act, config["eval_episodes"], config["eval_max_steps"])
 

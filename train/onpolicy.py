@@ -23,7 +23,7 @@ import jax
 import jax.numpy as jnp
 
 from jaxsmarl import metrics
-from train.loop import Trainer, make_evaluate
+from train.loop import Trainer, make_evaluate, make_train_fn
 
 __all__ = ["Transition", "OnPolicyState", "make_onpolicy_train"]
 
@@ -104,14 +104,7 @@ def make_onpolicy_train(config: dict, env, agent) -> Trainer:
     run_chunk = make_chunk(chunk_iters)
     run_tail = make_chunk(tail) if tail else None
 
-    def train(key):
-        rs = init(key)
-        rs, m = jax.lax.scan(lambda s, c: run_chunk(s, c * chunk_iters), rs, jnp.arange(n_full))
-        m = jax.tree.map(lambda x: x.reshape((-1,) + x.shape[2:]), m)
-        if run_tail is not None:
-            rs, m2 = run_tail(rs, n_full * chunk_iters)
-            m = jax.tree.map(lambda a, b: jnp.concatenate([a, b]), m, m2)
-        return rs, m
+    train = make_train_fn(init, run_chunk, run_tail, n_full, chunk_iters)
 
     evaluate = make_evaluate(wrapped, params, agent.greedy_act, config["eval_episodes"], config["eval_max_steps"])
     return Trainer(config=config, env=env, agent=agent, init=init, run_chunk=run_chunk, run_tail=run_tail,
