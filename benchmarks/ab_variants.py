@@ -49,32 +49,11 @@ def snapshot(name: str, directory: str) -> str:
 
 
 def runner(pkg, name: str, num_envs: int, num_steps: int):
-    """Jitted ``key -> episodes``: ``num_steps`` auto-reset steps of ``num_envs`` envs, random actions."""
-    import jax
-    import jax.numpy as jnp
+    """benchmarks/env_throughput.py's jitted roll-out, built from package ``pkg`` (a variant of envs_jax)."""
+    from env_throughput import jax_runner
 
-    env = pkg.make(name)
-    wrapped = pkg.AutoResetWrapper(env)
-    params = env.default_params
-    policy = importlib.import_module(pkg.__name__ + ".wrappers").random_actions(env)
-
-    def run(key):
-        key, key_reset = jax.random.split(key)
-        obs, state = jax.vmap(wrapped.reset, in_axes=(0, None))(jax.random.split(key_reset, num_envs), params)
-
-        def body(carry, _):
-            obs, state, key, episodes = carry
-            key, key_act, key_step = jax.random.split(key, 3)
-            action = jax.vmap(policy)(jax.random.split(key_act, num_envs), obs)
-            obs, state, _, _, done, _ = jax.vmap(wrapped.step, in_axes=(0, 0, 0, None))(
-                jax.random.split(key_step, num_envs), state, action, params)
-            return (obs, state, key, episodes + done.sum()), None
-
-        (_, _, _, episodes), _ = jax.lax.scan(body, (obs, state, key, jnp.zeros((), jnp.int32)), None,
-                                              length=num_steps)
-        return episodes
-
-    return jax.jit(run)
+    wrappers = importlib.import_module(pkg.__name__ + ".wrappers")
+    return jax_runner(pkg.make(name), num_envs, num_steps, pkg.AutoResetWrapper, wrappers.random_actions)
 
 
 def trajectories(pkg, name: str, num_envs: int, num_steps: int):

@@ -31,10 +31,12 @@ import envs_jax  # noqa: E402
 from envs_jax.wrappers import AutoResetWrapper, random_actions  # noqa: E402
 
 
-def jax_runner(env, num_envs: int, num_steps: int):
-    wrapped = AutoResetWrapper(env)
+def jax_runner(env, num_envs: int, num_steps: int, wrapper=AutoResetWrapper, actions=random_actions):
+    """Jitted ``key -> finished episodes``: ``num_steps`` auto-reset steps of ``num_envs`` envs, random actions.
+    ``wrapper``/``actions``: the auto-reset wrapper and random policy of the package ``env`` comes from."""
+    wrapped = wrapper(env)
     params = env.default_params
-    policy = random_actions(env)
+    policy = actions(env)
 
     def run(key):
         key, key_reset = jax.random.split(key)
