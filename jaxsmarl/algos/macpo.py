@@ -68,9 +68,7 @@ class MACPO(PPOBase):
     def agent_update(self, state: PPOState, i, batch, factor, key):
         cfg = self.config
         ix = self.index
-        obs, action, logp_old = batch.obs[i], batch.action[i], batch.logp[i]
-        adv_r, adv_c = batch.adv[i, 0], batch.adv[i, 1]
-        target, old_value, active = batch.target[i], batch.old_value[i], batch.active[i]
+        obs, action, logp_old, adv_r, adv_c, target, old_value, active = self.agent_batch(batch, i)
         jc = state.episode_cost[i]
 
         def minibatch(carry, idx):

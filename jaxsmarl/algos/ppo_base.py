@@ -155,6 +155,13 @@ class PPOBase(abc.ABC):
             lagrange=jnp.full((n,), cfg.lambda_init, dtype), episode_cost=jnp.zeros((n,), dtype))
 
     # ------------------------------------------------------------------------------------------------------
+    @staticmethod
+    def agent_batch(batch, i):
+        """Agent ``i``'s slice of the update batch: obs, action, old log-prob, reward and cost advantages, value
+        targets, old values and the active mask."""
+        return (batch.obs[i], batch.action[i], batch.logp[i], batch.adv[i, 0], batch.adv[i, 1], batch.target[i],
+                batch.old_value[i], batch.active[i])
+
     def normalize_obs(self, state: PPOState, obs):
         """``obs [..., N, D]`` -> normalised (identity when ``obs_norm`` is off)."""
         return state.obs_stats.normalize(obs) if self.config.obs_norm else obs
