@@ -124,9 +124,9 @@ def main(argv=None):
         for r in rows:
             print(f"{r['num_envs']:>8} {r['num_steps']:>6} {r['steps_per_s']:>14,.0f} {r['ratio']:>14,.0f} "
                   f"{r['compile_s']:>10.1f}")
-    os.makedirs(os.path.dirname(args.out), exist_ok=True)
-    with open(args.out, "w") as f:
-        json.dump(results, f, indent=2)
+        os.makedirs(os.path.dirname(args.out) or ".", exist_ok=True)
+        with open(args.out, "w") as f:  # after every scenario: a run cut short keeps what it measured
+            json.dump(results, f, indent=2)
     print(f"\nwrote {args.out}")
 
 
