@@ -156,3 +156,23 @@ def test_cli_errors_exit_2(capsys, tmp_path):
     assert "is not a run folder" in capsys.readouterr().err
     assert render.main(["--scenario", "merge", "--out", str(tmp_path / "x.png")]) == 2
     assert "must end in .gif or .mp4" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("scenario", ["merge", "roundabout"])
+def test_batched_lane_geometry_matches_pointwise_lane_positions(scenario):
+    """The road's surfaces and markings come from one padded, jitted batch per lane table; every point must be
+    the lane's own position() evaluated point by point (straight, sine and circular lanes)."""
+    lanes = envs_jax.make(scenario).road.lanes
+    polys = render.lane_surfaces(lanes, step=7.0)
+    width, length = lanes.np_col("width"), lanes.np_col("length")
+    for i in sorted({0, lanes.size // 2, lanes.size - 1}):
+        k = len(polys[i]) // 2
+        s = np.linspace(0.0, length[i], k)
+        for j in (0, k // 2, k - 1):
+            for lat, (x, y) in ((-width[i] / 2, polys[i][j]), (width[i] / 2, polys[i][-1 - j])):
+                px, py = L.position(lanes, i, float(s[j]), float(lat))
+                np.testing.assert_allclose([x, y], [float(px), float(py)], atol=1e-3)
+    segs = render.marking_segments(lanes)
+    assert len(segs) > 0 and np.isfinite(np.asarray(segs)).all()
+    x0, y0, x1, y1 = segs[-1]
+    assert math.hypot(x1 - x0, y1 - y0) > 0.5 * render.STRIPE_LENGTH

@@ -99,15 +99,26 @@ def fit_view(xs, ys, margin: float = 12.0, min_extent: float = 60.0, max_width: 
 # Road
 
 
+_POSITION_FNS: dict[int, tuple] = {}  # id(lane table) -> (table, jitted position), kept for the process
+
+
 def _lane_points(lanes, idx: np.ndarray, s: np.ndarray, lat: np.ndarray):
     """World positions of (s, lat) on lanes ``idx`` (broadcast), evaluated by the simulator's own
-    ``envs_jax.lanes.position``."""
+    ``envs_jax.lanes.position``, jitted once per lane table on inputs padded to a power of two (at least 256):
+    op-by-op evaluation compiled a small program per operation and per lane length, ~10 s per road."""
     from envs_jax import lanes as L
 
     idx, s, lat = np.broadcast_arrays(np.asarray(idx, np.int32), np.asarray(s, np.float64),
                                       np.asarray(lat, np.float64))
-    x, y = L.position(lanes, jnp.asarray(idx), jnp.asarray(s), jnp.asarray(lat))
-    return np.asarray(x, np.float64), np.asarray(y, np.float64)
+    shape, n = idx.shape, idx.size
+    entry = _POSITION_FNS.get(id(lanes))
+    if entry is None or entry[0] is not lanes:
+        entry = (lanes, jax.jit(lambda i, ss, ll: L.position(lanes, i, ss, ll)))
+        _POSITION_FNS[id(lanes)] = entry
+    size = max(256, 1 << max(0, n - 1).bit_length())
+    pad = lambda a: np.concatenate([a.ravel(), np.zeros(size - n, a.dtype)])
+    x, y = entry[1](pad(idx), pad(s), pad(lat))
+    return (np.asarray(x, np.float64)[:n].reshape(shape), np.asarray(y, np.float64)[:n].reshape(shape))
 
 
 def marking_segments(lanes) -> list[tuple[float, float, float, float]]:
@@ -138,21 +149,28 @@ def marking_segments(lanes) -> list[tuple[float, float, float, float]]:
             lats += [(side - 0.5) * width[i]] * int(keep.sum())
     if not rows:
         return []
-    x0, y0 = _lane_points(lanes, np.array(rows), np.array(s0s), np.array(lats))
-    x1, y1 = _lane_points(lanes, np.array(rows), np.array(s1s), np.array(lats))
-    return list(zip(x0, y0, x1, y1))
+    k = len(rows)
+    x, y = _lane_points(lanes, np.array(rows + rows), np.array(s0s + s1s), np.array(lats + lats))
+    return list(zip(x[:k], y[:k], x[k:], y[k:]))
 
 
 def lane_surfaces(lanes, step: float = 1.0) -> list[np.ndarray]:
     """One world-coordinate polygon ``[K, 2]`` per lane: its left edge forward, then its right edge back."""
     length = lanes.np_col("length")
     width = lanes.np_col("width")
-    out = []
-    for i in range(lanes.size):
-        s = np.linspace(0.0, length[i], max(2, int(math.ceil(length[i] / step)) + 1))
-        xl, yl = _lane_points(lanes, i, s, -width[i] / 2)
-        xr, yr = _lane_points(lanes, i, s, width[i] / 2)
-        out.append(np.concatenate([np.stack([xl, yl], 1), np.stack([xr, yr], 1)[::-1]]))
+    ss = [np.linspace(0.0, length[i], max(2, int(math.ceil(length[i] / step)) + 1)) for i in range(lanes.size)]
+    rows = np.concatenate([np.full(len(s), i) for i, s in enumerate(ss)])
+    s_all = np.concatenate(ss)
+    half = width[rows] / 2
+    x, y = _lane_points(lanes, np.concatenate([rows, rows]), np.concatenate([s_all, s_all]),
+                        np.concatenate([-half, half]))  # every lane's left edge, then every right edge
+    m = len(s_all)
+    out, start = [], 0
+    for s in ss:
+        sl = slice(start, start + len(s))
+        sr = slice(m + start, m + start + len(s))
+        out.append(np.concatenate([np.stack([x[sl], y[sl]], 1), np.stack([x[sr], y[sr]], 1)[::-1]]))
+        start += len(s)
     return out
 
 
