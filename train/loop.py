@@ -37,7 +37,7 @@ import jax.numpy as jnp
 from jaxsmarl import buffers, metrics
 
 __all__ = ["RunnerState", "Trainer", "make_env", "make_train", "make_offpolicy_train", "make_evaluate",
-           "make_train_fn", "seed_keys"]
+           "make_train_fn", "seed_keys", "episode_step_limit"]
 
 
 @flax.struct.dataclass
@@ -101,10 +101,25 @@ def make_train_fn(init: Callable, run_chunk: Callable, run_tail: Callable | None
     return train
 
 
+def episode_step_limit(env, params) -> int | None:
+    """The time limit in policy steps, ``ceil(duration * policy_frequency)`` (the env truncates at it), or None
+    when ``params`` is not concrete."""
+    try:
+        return int(math.ceil(float(params.duration) * env.policy_frequency - 1e-6))
+    except (AttributeError, TypeError, jax.errors.ConcretizationTypeError):
+        return None
+
+
 def make_evaluate(wrapped, params, act: Callable, episodes: int, max_steps: int) -> Callable:
     """``evaluate(agent_state, key) -> records[episodes]``: the first finished episode of each of ``episodes``
     fresh envs, acting with ``act(agent_state, obs) -> action`` (greedy); ``records`` as
-    :func:`jaxsmarl.metrics.episode_record` plus ``returned`` (False when ``max_steps`` ran out first)."""
+    :func:`jaxsmarl.metrics.episode_record` plus ``returned`` (False when ``max_steps`` ran out first).
+
+    The scan stops at the env's time limit when that is shorter than ``max_steps`` (merge: 20 decisions, not
+    200): every episode has ended by then and the steps use the first keys of ``split(k, max_steps)``, so the
+    records are the same as with the full ``max_steps``, for a tenth of the work."""
+    limit = episode_step_limit(wrapped, params)
+    n_steps = max_steps if limit is None else min(int(max_steps), limit)
 
     def evaluate(agent_state, key):
         def episode(k):
@@ -123,7 +138,7 @@ def make_evaluate(wrapped, params, act: Callable, episodes: int, max_steps: int)
             rec0 = {k: jnp.zeros((), bool if k == "returned" else jnp.float32)
                     for k in ("returned",) + metrics.EPISODE_FIELDS}
             (_, _, rec, _), _ = jax.lax.scan(body, (obs, st, rec0, jnp.zeros((), bool)),
-                                             jax.random.split(k_run, max_steps))
+                                             jax.random.split(k_run, max_steps)[:n_steps])
             return rec
 
         return jax.vmap(episode)(jax.random.split(key, max(1, episodes)))
