@@ -53,6 +53,9 @@ def test_study_end_to_end_resume_and_keep(tmp_path):
     assert "![merge training curves](figures/merge_curves.png)" in text
     assert "(figures/merge_csq.gif)" in text and "(figures/merge_sq.gif)" in text
     assert "is CSQ safer than SQ?" in text and "not comparable: much shorter training" in text
+    # verdicts from a 300-step run carry a caveat; 2 seeds: the IQM is the plain mean (not "close to" it)
+    assert "Caveat: trained for 300 steps per seed, 2% of the authors' 20,000" in text
+    assert "Their IQM is the plain mean of the seeds" in text
     assert "Known differences between the paper and the authors' code" in text
     assert "## roundabout" not in text  # nothing ran there
 
@@ -110,3 +113,74 @@ def test_cli_rejects_bad_options(capsys, tmp_path):
     assert experiments.main(["--only", "merge", "--set", "gamma=2", "--out", str(tmp_path)]) == 2
     assert "'gamma'" in capsys.readouterr().err
     assert not os.path.exists(tmp_path / "runs")
+
+
+def test_evaluation_stops_at_the_time_limit_with_the_same_records():
+    """The greedy evaluation scans only up to the env's time limit (merge: 20 decisions, not eval_max_steps=200);
+    each record must equal the first episode of an eager step-by-step roll-out with the same keys."""
+    import jax
+    import jax.numpy as jnp
+
+    from jaxsmarl import metrics
+    from train.loop import episode_step_limit, make_env, make_evaluate
+
+    env, wrapped, params = make_env("merge")
+    limit = episode_step_limit(env, params)
+    assert limit == 20  # 20 s at 1 decision per second
+
+    def act(agent_state, obs):  # a deterministic, observation-dependent policy (agent_state: an offset)
+        return (jnp.floor(jnp.abs(obs).sum(-1) * 7.0 + agent_state) % env.num_actions).astype(jnp.int32)
+
+    evaluate = make_evaluate(wrapped, params, act, episodes=3, max_steps=200)
+    assert "length=20" in str(jax.make_jaxpr(evaluate)(jnp.float32(0.0), jax.random.PRNGKey(0)))
+    key = jax.random.PRNGKey(7)
+    step = jax.jit(wrapped.step)
+    for offset in (0.0, 2.0):
+        rec = jax.device_get(evaluate(jnp.float32(offset), key))
+        for e, k in enumerate(jax.random.split(key, 3)):
+            k_reset, k_run = jax.random.split(k)
+            obs, st = wrapped.reset(k_reset, params)
+            for t, kk in enumerate(jax.random.split(k_run, 200)):
+                obs, st, _, _, _, info = step(kk, st, act(jnp.float32(offset), obs), params)
+                truth = metrics.episode_record(info)
+                if bool(truth["returned"]):
+                    break
+            assert t < limit and bool(rec["returned"][e])
+            for f in metrics.EPISODE_FIELDS:
+                np.testing.assert_allclose(rec[f][e], np.asarray(truth[f]), rtol=1e-6, err_msg=f)
+
+
+def test_figure_legend_has_one_authors_entry_per_algorithm(tmp_path, monkeypatch):
+    """Roundabout SQ's crash rate is recorded for one of the authors' three seeds: the legend must still show one
+    authors' entry per algorithm (not a second 'SQ ... 1 seeds' entry), in one column per algorithm."""
+    import matplotlib.figure
+
+    from train import figures
+
+    rng = np.random.default_rng(0)
+    n = 40
+    episodes = {"seed": np.repeat([0.0, 1.0], n), "episode": np.tile(np.arange(n, dtype=float), 2),
+                "end_step": np.tile(np.linspace(10, 400, n), 2)}
+    for f, _ in figures.scenario_panels("roundabout"):
+        episodes[f] = rng.uniform(0, 1, 2 * n)
+    run = {"config": {"total_steps": 400, "num_seeds": 2}, "episodes": episodes}
+    seen = {}
+    original = matplotlib.figure.Figure.legend
+
+    def spy(self, handles, labels, **kw):
+        seen.update(labels=list(labels), ncol=kw.get("ncol"),
+                    xscales={ax.get_xscale() for ax in self.axes if ax.get_visible()})
+        return original(self, handles, labels, **kw)
+
+    monkeypatch.setattr(matplotlib.figure.Figure, "legend", spy)
+    paths = figures.plot_scenario("roundabout", {"csq": run, "sq": run}, str(tmp_path / "r"))
+    assert all(os.path.getsize(p) > 0 for p in paths)
+    assert seen["labels"] == ["CSQ (ours, 2 seeds)", "CSQ: authors' record, last 10% (10k steps, 3 seeds)",
+                              "SQ (Bi-AC: CSQ, d=100) (ours, 2 seeds)",
+                              "SQ (Bi-AC: CSQ, d=100): authors' record, last 10% (10k steps, 3 seeds)"]
+    assert seen["ncol"] == 2 and seen["xscales"] == {"linear"}
+    # budgets 10x apart (quick study: MADDPG 3,000 vs MAPPO-L 32,768 steps): a log axis, not a squeezed short run
+    long = dict(run, config={"total_steps": 4000, "num_seeds": 2},
+                episodes=dict(episodes, end_step=episodes["end_step"] * 10))
+    figures.plot_scenario("roundabout", {"csq": run, "sq": long}, str(tmp_path / "r2"))
+    assert seen["xscales"] == {"log"}

@@ -13,6 +13,7 @@ Study folder (``--out``)::
                               checkpoints/)
     figures/                  <scenario>_curves.png/.pdf (train.figures), <scenario>_<algo>.gif (train.render)
     study.json                what was asked, what each run did, and the wall-clock time spent on it
+    jax_cache/                JAX's persistent compilation cache (command line only; safe to delete)
     RESULTS.md                tables, figures, GIFs and the honesty section (train.report)
 
 Resumable: a run whose summary.json says ``"finished": true`` is not redone; an interrupted one resumes from its
@@ -42,28 +43,33 @@ STUDY: dict[str, tuple[str, ...]] = {
 DEFAULT_SEEDS = 10
 
 # --quick budgets per (scenario, algo): overrides of the run configuration. Target: the whole study (12 runs, each
-# with compilation, greedy evaluation and a GIF) in under 15 minutes on a 2-core CPU, i.e. about 75 s per run.
-# Measured (shared 2-core CPU, 2026-11-23, --quick --only merge --only roundabout): 4 seeds x 4000 steps of merge
-# CSQ trained in 10 s, 4 x 3000 of roundabout in 8 s, plus ~15-20 s per run for compilation, evaluation and the
-# GIF; the budgets below (about 2.5x those) should take ~40-50 s per discrete run. The continuous algorithms were
-# CS-MADDPG measured on the same machine under load (load average 5): 4 seeds x 5000 steps trained in 87 s
-# (intersection) / 108 s (racetrack) plus ~20 s compilation, hence 2500 steps here (~65 s per run).
-# MAPPO-L / MACPO were not available when this was written: placeholders -- time them and adjust.
+# with its compilations, a greedy evaluation and a GIF) in under 15 minutes on an idle 2-core CPU. Every run has 4
+# seeds (an even count: seeds are split over both cores, train.run.seed_sharding; 5 seeds ran on one core) and a
+# budget that is a whole number of chunks (2500 steps in 1000-step chunks compiled a second, 500-step program).
+# Per-run fixed costs dominate: compiling init, the chunk, the evaluation and the GIF's episode takes 25-35 s of
+# CPU per run (more for MAPPO-L/MACPO: 512 envs), about as much as the training below.
+# Measured 2026-11-30 with `python -m train.experiments --quick --out /tmp/quick_study` on the shared 2-core CPU
+# while other jobs kept the load average at 5-7 (so wall-clock times are 1.5-3x an idle machine's): with one
+# third more steps for MADDPG and roundabout than below, 19m38s wall, 12m41s CPU (user+sys, which bounds the
+# idle wall time from above). Per run (wall, loaded): train 8-85 s, chunk compilation 14-42 s, other (init with
+# its compilation, evaluation, checkpoints) 3-46 s, GIF 4-13 s; figures and RESULTS.md 8 s. Where the time went
+# before these budgets (now cut): 5 seeds ran on one core, 2500-step budgets compiled a second (tail) chunk, the
+# evaluation scanned 200 steps of 20-step episodes, and each GIF's road was drawn op by op (5-18 s per scenario).
 QUICK: dict[tuple[str, str], dict] = {
-    ("merge", "csq"): {"total_steps": 10000, "num_seeds": 5},
-    ("merge", "sq"): {"total_steps": 10000, "num_seeds": 5},
-    ("roundabout", "csq"): {"total_steps": 6000, "num_seeds": 5},
-    ("roundabout", "sq"): {"total_steps": 6000, "num_seeds": 5},
-    ("intersection", "cs-maddpg"): {"total_steps": 2500, "num_seeds": 4},
-    ("intersection", "s-maddpg"): {"total_steps": 2500, "num_seeds": 4},
-    ("intersection", "mappo-l"): {"total_steps": 5000, "num_seeds": 4},
-    ("intersection", "macpo"): {"total_steps": 5000, "num_seeds": 4},
-    ("racetrack", "cs-maddpg"): {"total_steps": 2500, "num_seeds": 4},
-    ("racetrack", "s-maddpg"): {"total_steps": 2500, "num_seeds": 4},
-    ("racetrack", "mappo-l"): {"total_steps": 5000, "num_seeds": 4},
-    ("racetrack", "macpo"): {"total_steps": 5000, "num_seeds": 4},
+    ("merge", "csq"): {"total_steps": 6000, "num_seeds": 4},
+    ("merge", "sq"): {"total_steps": 6000, "num_seeds": 4},
+    ("roundabout", "csq"): {"total_steps": 3000, "num_seeds": 4},
+    ("roundabout", "sq"): {"total_steps": 3000, "num_seeds": 4},
+    ("intersection", "cs-maddpg"): {"total_steps": 2000, "num_seeds": 4},
+    ("intersection", "s-maddpg"): {"total_steps": 2000, "num_seeds": 4},
+    ("intersection", "mappo-l"): {"total_steps": 32768, "num_seeds": 4},  # 4 updates of 512 envs x 16 steps
+    ("intersection", "macpo"): {"total_steps": 32768, "num_seeds": 4},
+    ("racetrack", "cs-maddpg"): {"total_steps": 2000, "num_seeds": 4},
+    ("racetrack", "s-maddpg"): {"total_steps": 2000, "num_seeds": 4},
+    ("racetrack", "mappo-l"): {"total_steps": 32768, "num_seeds": 4},
+    ("racetrack", "macpo"): {"total_steps": 32768, "num_seeds": 4},
 }
-QUICK_EVAL_EPISODES = 5
+QUICK_EVAL_EPISODES = 10
 
 # Keys whose change does not alter the training trajectory (train.run accepts them on resume).
 _RESUME_FREE = ("checkpoint_every", "eval_episodes", "eval_max_steps")
@@ -197,7 +203,9 @@ def run_one(item: dict, study_dir: str, overwrite: bool = False, gifs: bool = Tr
     status["train_wall_s"] = time.perf_counter() - t0
     final = _read_json(os.path.join(run_dir, "summary.json")) or {}
     if gifs and final.get("finished"):
+        t1 = time.perf_counter()
         status["gif"] = _render(run_dir, os.path.join(study_dir, "figures", f"{name}.gif"), verbose)
+        status["gif_s"] = time.perf_counter() - t1
     return status
 
 
@@ -246,8 +254,11 @@ def run_study(out: str, only=None, quick: bool = False, seeds: int | None = None
             status.pop("config", None)
             study["runs"][key] = status
             _write_json(path, study)
+    t1 = time.perf_counter()
     paths = figures.make_figures(study_dir)
-    _say(f"figures: {', '.join(p for v in paths.values() for p in v if p.endswith('.png')) or 'none'}", verbose)
+    study["figures_s"] = time.perf_counter() - t1
+    _say(f"figures: {', '.join(p for v in paths.values() for p in v if p.endswith('.png')) or 'none'} "
+         f"({study['figures_s']:.0f} s)", verbose)
     report_path = report.write_report(study_dir, study)
     study["last_invocation_s"] = time.perf_counter() - t0
     _write_json(path, study)
@@ -259,6 +270,18 @@ def _write_json(path: str, obj) -> None:
     from jaxsmarl.metrics import write_json
 
     write_json(path, obj)
+
+
+def enable_compile_cache(path: str) -> None:
+    """JAX's persistent compilation cache in ``path``: identical programs compile once per study (e.g. CSQ's and
+    SQ's init, ~10 s each on a loaded 2-core CPU) and a re-run or resumed study skips almost all compilation."""
+    import jax
+
+    try:
+        jax.config.update("jax_compilation_cache_dir", os.path.abspath(path))
+        jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
+    except Exception as e:  # an optional speed-up: never fail a study over it
+        print(f"note: no persistent compilation cache ({type(e).__name__}: {e})", file=sys.stderr)
 
 
 def _parse_set(items) -> dict:
@@ -309,6 +332,7 @@ def main(argv=None) -> int:
     import train.run
 
     train.run.use_all_cpu_cores()
+    enable_compile_cache(os.path.join(out, "jax_cache"))
     run_study(out, args.only, args.quick, args.seeds, args.steps, overrides, overwrite=args.overwrite,
               gifs=not args.no_gifs, report_only=args.report_only, verbose=not args.quiet)
     return 0

@@ -5,7 +5,10 @@ rate and the leader's and follower's arrival rate (racetrack: crash rate, off-ro
 leader and the follower). Each algorithm is one line: episodes are binned by the env step at which they ended
 (``end_step`` of ``episodes.csv``), each seed's episodes in a bin are averaged, and the line is the mean over seeds
 with a 95% bootstrap band across seeds. The authors' recorded values (last 10% of training, one marker per seed,
-original_code.md §10.3) sit at the right edge, clearly labelled with their own training budget.
+original_code.md §10.3) sit at the right edge, clearly labelled with their own training budget. When the runs'
+budgets are 4x apart or more (the quick study's MADDPG vs MAPPO-L) the step axis is logarithmic; runs whose envs
+stepped fewer than 5 episode limits each (512 parallel envs) are named in red under the title, since their
+finished episodes over-represent the short (crashed) ones.
 
 ``python -m train.figures STUDY_DIR`` redraws the figures of a study folder.
 """
@@ -42,6 +45,16 @@ ALGO_STYLE = {
 
 def label(algo: str) -> str:
     return ALGO_STYLE.get(algo, (algo, None))[0]
+
+
+def authors_label(scenario: str, algo: str) -> str:
+    """Legend entry of the authors' markers: one per algorithm, whichever panel drew them (a field recorded for
+    fewer seeds, e.g. roundabout SQ's crash rate, must not add a second entry)."""
+    ref = AUTHORS[(scenario, algo)]
+    steps = ref["steps"]
+    budget = f"{steps // 1000}k steps" if steps else "budget unknown"
+    n = max(len(authors_values(scenario, algo, f)) for f, _ in RETURN_PANELS)
+    return f"{label(algo)}: authors' record, last 10% ({budget}, {n} seeds)"
 
 
 def load_run(run_dir: str) -> dict | None:
@@ -97,6 +110,31 @@ def binned_curve(series: list[tuple[np.ndarray, np.ndarray]], total_steps: int, 
     return (edges[:-1] + edges[1:]) / 2, mean, lo, hi
 
 
+def episode_limit(scenario: str) -> int | None:
+    """The scenario's episode time limit in decisions (envs_jax default parameters), None if unavailable."""
+    try:
+        import envs_jax
+        from train.loop import episode_step_limit
+
+        env = envs_jax.make(scenario)
+        return episode_step_limit(env, env.default_params)
+    except Exception:  # a figure must not fail over a caveat
+        return None
+
+
+def short_runs(scenario: str, runs: dict[str, dict], factor: int = 5) -> list[str]:
+    """Runs whose envs each stepped fewer than ``factor`` episode limits: among their finished episodes the short
+    ones (crashes) are over-represented (e.g. 512 envs x 64 steps on the racetrack, whose episodes last up to 200)."""
+    limit = episode_limit(scenario)
+    out = []
+    for algo, run in runs.items():
+        n_envs = int(run["config"].get("num_envs", 1))
+        per_env = int(run["config"]["total_steps"]) // n_envs
+        if limit and per_env < factor * limit:
+            out.append(f"{label(algo)}: {n_envs} envs x {per_env} steps, episodes up to {limit}")
+    return out
+
+
 def scenario_panels(scenario: str) -> list[tuple[str, str]]:
     return RETURN_PANELS + EVENT_PANELS.get(scenario, EVENT_PANELS["default"])
 
@@ -117,7 +155,12 @@ def plot_scenario(scenario: str, runs: dict[str, dict], out_base: str, n_bins: i
         for c in range(ncols):
             if (r, c) not in positions:
                 axes[r, c].set_visible(False)
-    x_max = max([int(r["config"]["total_steps"]) for r in runs.values()] or [1])
+    budgets = [int(r["config"]["total_steps"]) for r in runs.values()] or [1]
+    x_max = max(budgets)
+    # Budgets 4x apart or more (quick study: MADDPG 3,000 steps, MAPPO-L 32,768): a linear axis would squeeze the
+    # shorter runs into its first few percent, so the axis is logarithmic, from the first bin of the shortest run.
+    log_x = x_max >= 4 * min(budgets)
+    x_min = min(budgets) / n_bins / 2
     ref_drawn = False
     for (field, title), (r, c) in zip(panels, positions):
         ax = axes[r, c]
@@ -130,15 +173,18 @@ def plot_scenario(scenario: str, runs: dict[str, dict], out_base: str, n_bins: i
             ax.fill_between(x, lo, hi, color=line.get_color(), alpha=0.2, linewidth=0)
             ref = authors_values(scenario, algo, field)
             if ref:
-                steps = AUTHORS[(scenario, algo)]["steps"]
-                budget = f"{steps // 1000}k steps" if steps else "budget unknown"
-                xr = x_max * (1.03 + 0.02 * k)
+                xr = x_max * ((1.08 + 0.06 * k) if log_x else (1.03 + 0.02 * k))
                 ax.scatter([xr] * len(ref), ref, marker="x", s=30, color=line.get_color(), zorder=5,
-                           label=f"{name}: authors' record, last 10% ({budget}, {len(ref)} seeds)")
+                           label=authors_label(scenario, algo))
                 ref_drawn = True
         ax.set_title(title)
-        ax.set_xlabel("training env steps per seed")
-        ax.set_xlim(0, x_max * (1.03 + 0.02 * len(runs)) + x_max * 0.02)
+        if log_x:
+            ax.set_xscale("log")
+            ax.set_xlabel("training env steps per seed (log scale)")
+            ax.set_xlim(x_min * 0.8, x_max * (1.08 + 0.06 * len(runs)))
+        else:
+            ax.set_xlabel("training env steps per seed")
+            ax.set_xlim(0, x_max * (1.03 + 0.02 * len(runs)) + x_max * 0.02)
         ax.grid(alpha=0.3)
         if field in ("crash", "offroad", "leader_arrived", "follower_arrived"):
             ax.set_ylim(-0.03, 1.03)
@@ -150,8 +196,18 @@ def plot_scenario(scenario: str, runs: dict[str, dict], out_base: str, n_bins: i
                 labels.append(lab)
     note = ("  x: authors' recorded value per seed, drawn at the right edge" if ref_drawn else "")
     fig.suptitle(f"{scenario}: mean over seeds with 95% bootstrap band across seeds{note}", fontsize=11)
-    fig.legend(handles, labels, loc="lower center", ncol=min(3, max(1, len(labels))), fontsize=8, frameon=False)
-    n_rows_legend = (len(labels) + 2) // 3
+    short = short_runs(scenario, runs)
+    if short:
+        fig.text(0.5, 0.935, "; ".join(short) + ": short (crashed) episodes finish first and are over-represented",
+                 ha="center", va="top", fontsize=8, color="tab:red")
+    # one legend column per algorithm (ours, then the authors' record below it; legends fill column by column)
+    if len(labels) == 2 * len(runs):
+        fits = int(fig.get_figwidth() // 4.0)  # legend columns of ~4 inches
+        ncol = len(runs) if len(runs) <= fits else -(-len(runs) // 2)
+    else:
+        ncol = max(1, min(3, len(labels)))
+    fig.legend(handles, labels, loc="lower center", ncol=ncol, fontsize=8, frameon=False)
+    n_rows_legend = -(-len(labels) // ncol)
     fig.tight_layout(rect=(0, 0.035 * n_rows_legend + 0.02, 1, 0.95))
     os.makedirs(os.path.dirname(os.path.abspath(out_base)), exist_ok=True)
     paths = []

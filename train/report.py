@@ -19,7 +19,7 @@ import sys
 import numpy as np
 
 from jaxsmarl import metrics, stats
-from train.figures import label, study_runs
+from train.figures import label, short_runs, study_runs
 from train.reference_results import AUTHORS, CODE_DIFFERENCES, PAPER_CLAIMS, authors_summary
 
 __all__ = ["final_per_seed", "eval_per_seed", "interval", "compare", "write_report", "render_report"]
@@ -93,15 +93,20 @@ def _budget(run: dict) -> str:
 
 
 def _timing(run: dict, study: dict, key: str) -> str:
+    """``wall W (train T, compile C, other O) + GIF G``: other = initialisation (its compilation too), greedy
+    evaluation (compiled), checkpoints and files; W is this study's time on the run, all invocations together."""
     t = (run.get("summary") or {}).get("timing") or {}
-    wall = ((study or {}).get("runs", {}).get(key) or {}).get("wall_s")
-    parts = []
-    if t:
-        parts.append(f"train {metrics.format_duration(t.get('train_s', 0))}, compile "
-                     f"{t.get('compile_s', 0):.0f}s")
-    if wall:
-        parts.append(f"wall {metrics.format_duration(wall)}")
-    return "; ".join(parts) or "n/a"
+    st = (study or {}).get("runs", {}).get(key) or {}
+    wall, gif = st.get("wall_s"), st.get("gif_s")
+    train = f"train {metrics.format_duration(t.get('train_s', 0))}, compile {t.get('compile_s', 0):.0f}s" if t else ""
+    if wall and t and t.get("segments", 1) <= 1:
+        other = wall - t.get("train_s", 0) - t.get("compile_s", 0)
+        text = f"wall {metrics.format_duration(wall)} ({train}, other {other:.0f}s)"
+    elif wall:
+        text = f"wall {metrics.format_duration(wall)}" + (f" ({train})" if train else "")
+    else:
+        text = train or "n/a"
+    return text + (f" + GIF {gif:.0f}s" if gif else "")
 
 
 def _scenario_section(scenario: str, runs: dict[str, dict], study: dict, study_dir: str) -> list[str]:
@@ -159,6 +164,16 @@ def _scenario_section(scenario: str, runs: dict[str, dict], study: dict, study_d
     return lines + [""]
 
 
+def _short_budget(scenario: str, run: dict) -> str:
+    """A caveat when ``run`` trained for less than half the authors' budget of the same run (else "")."""
+    steps = AUTHORS.get((scenario, run["config"]["algo"]), {}).get("steps")
+    ours = int(run["config"]["total_steps"])
+    if not steps or ours >= 0.5 * steps:
+        return ""
+    return (f" Caveat: trained for {ours:,} steps per seed, {100 * ours / steps:.0f}% of the authors' {steps:,}; the "
+            "paper's claims are about trained policies, so this verdict says little about them.")
+
+
 def _honesty(all_runs: dict[str, dict[str, dict]]) -> list[str]:
     out = ["## Honesty: where our numbers agree with the paper and where they do not", ""]
     crash = lambda run: interval(final_per_seed(run, "crash"))
@@ -169,7 +184,7 @@ def _honesty(all_runs: dict[str, dict[str, dict]]) -> list[str]:
             s, sign = compare("CSQ", crash(runs["csq"]), "SQ", crash(runs["sq"]), f"{scenario} crash rate")
             verdict = {-1: "agrees with the paper (CSQ safer)", 1: "contradicts the paper (SQ safer)",
                        0: "does not confirm the paper's claim that CSQ is safer"}[sign]
-            out.append(f"- **{scenario}, is CSQ safer than SQ?** {s} This {verdict}.")
+            out.append(f"- **{scenario}, is CSQ safer than SQ?** {s} This {verdict}.{_short_budget(scenario, runs['csq'])}")
             c = final_per_seed(runs["csq"], "crash")
             zero = sum(1 for v in c if v == 0)
             out.append(f"  - The paper calls CSQ {'100% safe after convergence' if scenario == 'merge' else 'safer'}"
@@ -195,7 +210,8 @@ def _honesty(all_runs: dict[str, dict[str, dict]]) -> list[str]:
             beats = sign_r > 0 and sign_c <= 0
             verdict = ("CS-MADDPG beats it, as the paper says" if beats else
                        "the paper's claim that CS-MADDPG beats it is not confirmed by these runs")
-            out.append(f"- **{scenario}, does CS-MADDPG beat {label(base)}?** {s1} {s2} Verdict: {verdict}.")
+            out.append(f"- **{scenario}, does CS-MADDPG beat {label(base)}?** {s1} {s2} Verdict: {verdict}."
+                       f"{_short_budget(scenario, runs['cs-maddpg'])}")
         if scenario == "racetrack":
             d = lambda run: interval([a + b for a, b in zip(final_per_seed(run, "leader_distance"),
                                                              final_per_seed(run, "follower_distance"))])
@@ -221,10 +237,21 @@ def _honesty(all_runs: dict[str, dict[str, dict]]) -> list[str]:
             caveat = " (not comparable: much shorter training)" if steps and ours < 0.5 * steps else ""
             out.append(f"- {scenario} {label(algo)}: authors {ref[0]:.1f} is {where} our {_fmt(ci, 1)}; "
                        f"{budget}{caveat}.")
+    censored = [f"{scenario} {item}" for scenario, runs in all_runs.items() for item in short_runs(scenario, runs)]
+    if censored:
+        out += ["", "Caution: in these runs each parallel env stepped fewer than 5 times the episode limit, so episodes "
+                    "that end early (crashes) are over-represented among the finished ones, in the curves' first bins "
+                    "and in the last-10% statistics alike: " + "; ".join(censored) + "."]
     seeds = sorted({int(r["config"]["num_seeds"]) for runs in all_runs.values() for r in runs.values()})
     if seeds and min(seeds) < 5:
-        out += ["", f"Caution: some runs have only {min(seeds)} seeds; with so few seeds the intervals are wide and "
-                    "the IQM is close to the plain mean."]
+        n = min(seeds)
+        kept = n - 2 * int(0.25 * n)
+        what = ("the plain mean of the seeds" if kept == n else
+                "the mean of the middle two seeds, i.e. their median" if n == 4 else
+                f"the mean of the middle {kept} seeds")
+        out += ["", f"Caution: some runs have only {n} seed{'s' if n != 1 else ''}. Their IQM is {what}, and a "
+                    "percentile bootstrap over so few seeds gives intervals that are too narrow: read \"the 95% "
+                    "intervals do not overlap\" as weak evidence."]
     return out + [""]
 
 
