@@ -5,8 +5,10 @@
 
 Uses each scenario's configuration (``train/configs/<scenario>_<algo>.json``: num_envs x rollout_length samples per
 update); ``--num-envs`` overrides it. Compiles one chunk of ``--cycles`` rollout+update cycles ahead of time, runs it
-once to warm up and then ``--repeats`` times (median). "all seeds" counts every seed's steps. Writes
-``benchmarks/results/train_onpolicy.json`` with the machine's load average: on a shared CPU the figures are low.
+once to warm up and then ``--repeats`` times (median). "all seeds" counts every seed's steps. The programs and
+XLA flags are those of ``python -m train`` (:func:`train.run.seed_parallel`, :func:`train.run.use_all_cpu_cores`).
+Writes ``benchmarks/results/train_onpolicy.json`` with the machine's load average: on a shared CPU the figures
+are low.
 """
 
 from __future__ import annotations
@@ -25,7 +27,7 @@ import jax.numpy as jnp  # noqa: E402
 
 from train.config import load_config  # noqa: E402
 from train.loop import make_train, seed_keys  # noqa: E402
-from train.run import seed_sharding, use_all_cpu_cores  # noqa: E402
+from train.run import seed_parallel, use_all_cpu_cores  # noqa: E402
 
 
 def bench(scenario: str, algo: str, seeds: int, cycles: int, repeats: int, num_envs: int | None) -> dict:
@@ -38,11 +40,9 @@ def bench(scenario: str, algo: str, seeds: int, cycles: int, repeats: int, num_e
     cfg = load_config(scenario, algo, over)
     trainer = make_train(cfg)
     keys = seed_keys(cfg)
-    sh = seed_sharding(seeds)
-    outs = None if sh is None else (sh, sh)
     t0 = time.perf_counter()
-    state = jax.jit(jax.vmap(trainer.init), out_shardings=sh)(keys)
-    chunk = jax.jit(jax.vmap(trainer.run_chunk, in_axes=(0, None)), out_shardings=outs).lower(
+    state = seed_parallel(trainer.init, seeds)(keys)  # the programs python -m train runs
+    chunk = seed_parallel(trainer.run_chunk, seeds, in_axes=(0, None), donate_argnums=0).lower(
         state, jnp.int32(0)).compile()
     compile_s = time.perf_counter() - t0
     state, m = chunk(state, jnp.int32(0))
@@ -84,7 +84,7 @@ def main(argv=None) -> int:
     os.makedirs(os.path.dirname(a.out), exist_ok=True)
     with open(a.out, "w") as f:
         json.dump({"jax": jax.__version__, "cpu_count": os.cpu_count(), "date": time.strftime("%Y-%m-%d %H:%M"),
-                   "results": rows}, f, indent=2)
+                   "xla_flags": os.environ.get("XLA_FLAGS", ""), "results": rows}, f, indent=2)
     return 0
 
 

@@ -4,6 +4,10 @@ running normalisers and the critic loss.
 * :class:`MLP`: the reference ``MLPBase`` (MACPO-repo ``algorithms/utils/mlp.py``): ``LayerNorm(obs)`` (feature
   normalisation) -> ``Linear + ReLU + LayerNorm`` -> ``layer_n x [Linear + ReLU + LayerNorm]`` -> linear head;
   orthogonal weights with the ReLU gain sqrt(2), zero biases, head gain 0.01 for the policy and 1 for critics.
+  The orthogonal matrices come from :func:`orthogonal_init` (Gram-Schmidt in plain XLA ops), not from
+  ``jax.nn.initializers.orthogonal``: that one calls LAPACK's QR, whose XLA:CPU kernel blocks a thread of the
+  intra-op pool while it waits for work it queued on the same pool, so two seed shards initialising at once on
+  a 2-core machine deadlock (the MAPPO-L/MACPO start-up hang).
 * Gaussian policy with a state-independent bounded standard deviation (``DiagGaussian``):
   ``std = sigmoid(log_std / x_coef) * y_coef``, ``log_std`` initialised to ``x_coef`` (std 0.5 sigmoid(1) = 0.37).
 * :class:`RunningStats`: running mean / variance (Chan et al.'s parallel update), used for the observation
@@ -21,8 +25,39 @@ import flax.struct
 import jax
 import jax.numpy as jnp
 
-__all__ = ["MLP", "std_from_param", "gaussian_log_prob", "gaussian_entropy", "gaussian_kl", "RunningStats",
+__all__ = ["MLP", "orthogonal_init", "std_from_param", "gaussian_log_prob", "gaussian_entropy", "gaussian_kl", "RunningStats",
            "huber", "value_loss", "masked_mean", "standardize"]
+
+
+def orthogonal_init(scale: float = 1.0):
+    """``jax.nn.initializers.orthogonal(scale)`` for 2-D kernels without a LAPACK custom call.
+
+    Same recipe and same random draw: ``z ~ N(0, 1)`` of shape ``[max(r, c), min(r, c)]``, ``Q`` of its QR
+    factorisation with a positive diagonal of ``R`` (unique, so the result equals jax's up to rounding),
+    transposed when the kernel has fewer rows than columns, times ``scale``. ``Q`` is built column by column by
+    Gram-Schmidt with re-orthogonalisation ("twice is enough"), in a ``fori_loop`` of matrix-vector products:
+    no custom call that could block an XLA:CPU pool thread (see the module docstring).
+    """
+
+    def init(key, shape, dtype=None):
+        if len(shape) != 2:
+            raise ValueError(f"orthogonal_init: 2-D kernels only, got shape {shape}")
+        dtype = dtype or jnp.zeros(()).dtype
+        r, c = shape
+        n, m = max(r, c), min(r, c)
+        z = jax.random.normal(key, (n, m), dtype)
+
+        def column(j, q):
+            v = z[:, j]
+            for _ in range(2):  # columns >= j of q are still zero, so this projects on the finished ones
+                v = v - q @ (q.T @ v)
+            return q.at[:, j].set(v / jnp.linalg.norm(v))
+
+        q = jax.lax.fori_loop(0, m, column, jnp.zeros((n, m), dtype))
+        q = q.T if r < c else q
+        return jnp.asarray(scale, dtype) * q
+
+    return init
 
 
 class MLP(nn.Module):
@@ -40,10 +75,10 @@ class MLP(nn.Module):
         if self.feature_norm:
             x = nn.LayerNorm(epsilon=1e-5)(x)
         for _ in range(1 + self.layer_n):
-            x = nn.Dense(self.hidden, kernel_init=nn.initializers.orthogonal(relu_gain),
+            x = nn.Dense(self.hidden, kernel_init=orthogonal_init(relu_gain),
                          bias_init=nn.initializers.zeros)(x)
             x = nn.LayerNorm(epsilon=1e-5)(nn.relu(x))
-        return nn.Dense(self.out_dim, kernel_init=nn.initializers.orthogonal(self.out_gain),
+        return nn.Dense(self.out_dim, kernel_init=orthogonal_init(self.out_gain),
                         bias_init=nn.initializers.zeros)(x)
 
 
