@@ -28,6 +28,7 @@ from envs_jax import collision, observation
 from envs_jax import lanes as L
 from envs_jax import vehicle as V
 from envs_jax.road import Road
+from envs_jax.sparse import sparse_map  # also importable from here (envs_jax.env.sparse_map)
 
 NUM_AGENTS = 2
 
@@ -81,59 +82,6 @@ class EnvState:
     arrived: jax.Array  # scenario arrival flags
     first_arrived: jax.Array  # 0 nobody yet, 1 leader first, 2 follower first
     time: jax.Array  # policy steps taken
-
-
-def sparse_map(fn, mask, *args):
-    """``fn`` applied to the rows ``k`` of ``args`` (leading axis) where ``mask[k]``; zeros elsewhere.
-
-    For work that is needed only rarely but would otherwise run for every
-    environment under ``vmap`` (a batched ``cond`` evaluates both branches): the
-    separating-axis test of vehicles that pass the bounding-circle prefilter, the
-    next-lane choice of a vehicle at the end of its lane. Without ``vmap`` it is a
-    ``cond`` on ``any(mask)``. Under ``vmap`` (custom batching rule) the masked rows
-    of the whole batch are packed into chunks of a fixed capacity, ``fn`` runs on
-    those only, and the results are scattered back; a ``while_loop`` over chunks
-    keeps it exact whatever the number of masked rows. Rows are independent, so the
-    result equals ``where(mask, vmap(fn)(*args), 0)`` up to XLA compiling ``fn``'s
-    arithmetic differently (an ulp at most; tests/test_sparse_map.py).
-    """
-    vfn = jax.vmap(fn)
-
-    def dense(mask, *args):
-        out = jax.eval_shape(vfn, *args)
-        zeros = jax.tree_util.tree_map(lambda s: jnp.zeros(s.shape, s.dtype), out)
-        res = jax.lax.cond(jnp.any(mask), lambda: vfn(*args), lambda: zeros)
-        return jax.tree_util.tree_map(lambda r: jnp.where(mask.reshape(mask.shape + (1,) * (r.ndim - 1)), r, jnp.zeros_like(r)), res)
-
-    f = jax.custom_batching.custom_vmap(dense)
-
-    @f.def_vmap
-    def rule(axis_size, in_batched, mask, *args):
-        k = mask.shape[-1]
-        n = axis_size * k  # rows of the whole batch, flattened
-        flat = lambda a, b: (a if b else jnp.broadcast_to(a, (axis_size,) + a.shape)).reshape((n,) + a.shape[1 + b:])
-        mask = flat(mask, in_batched[0])
-        args = jax.tree_util.tree_map(flat, args, tuple(in_batched[1:]))
-        cap = n if n <= 64 else max(64, n // 8)  # static chunk capacity
-        pos = jnp.cumsum(mask.astype(jnp.int32)) - 1  # rank of each masked row
-        count = jnp.sum(mask.astype(jnp.int32))
-        out = jax.eval_shape(vfn, *args)
-        out = jax.tree_util.tree_map(lambda s: jnp.zeros(s.shape, s.dtype), out)
-
-        def chunk(carry):
-            c, out = carry
-            slot = pos - c * cap
-            slot = jnp.where(mask & (slot >= 0) & (slot < cap), slot, cap)  # cap: dropped
-            rows = jnp.full(cap, n, jnp.int32).at[slot].set(jnp.arange(n, dtype=jnp.int32), mode="drop")
-            res = vfn(*jax.tree_util.tree_map(lambda a: a[jnp.minimum(rows, n - 1)], args))
-            out = jax.tree_util.tree_map(lambda o, r: o.at[rows].set(r, mode="drop"), out, res)
-            return c + 1, out
-
-        _, out = jax.lax.while_loop(lambda carry: carry[0] * cap < count, chunk, (jnp.zeros((), jnp.int32), out))
-        out = jax.tree_util.tree_map(lambda o: o.reshape((axis_size, k) + o.shape[1:]), out)
-        return out, jax.tree_util.tree_map(lambda _: True, out)
-
-    return f(mask, *args)
 
 
 class Scenario:
@@ -321,7 +269,8 @@ class DrivingEnv:
         s = jnp.take_along_axis(coords[0], tl[:, None], axis=-1)[:, 0]
         end = s > lengths[tl] - L.VEHICLE_LENGTH / 2
         # next_lane only for the (rare) vehicles at the end of their lane.
-        nl, nrp = sparse_map(road.next_lane, end, tl, s, st.route_roads, st.route_ids, st.route_len, rp)
+        nl, nrp = sparse_map(road.next_lane, end, tl, s, st.route_roads, st.route_ids, st.route_len, rp,
+                             fraction=1 / 32)  # ~2% of the vehicles per frame
         return st.replace(target_lane=jnp.where(end, nl, tl), route_ptr=jnp.where(end, nrp, rp))
 
     def _decide_discrete(self, st: EnvState, coords, action, params):
@@ -355,12 +304,12 @@ class DrivingEnv:
 
     @staticmethod
     def _obstacle_shapes(params, dtype):
-        """Static obstacles as collision shapes (corners computed once per step)."""
+        """Static obstacles as collision poses ``(x, y, heading, speed=0, length, width)``."""
         obstacles = params.obstacles
         if obstacles is None or int(np.shape(obstacles)[0]) == 0:
             return []
         obstacles = jnp.asarray(obstacles, dtype)
-        return [collision.Shape.make(o[0], o[1], o[2], 0.0, o[3], o[4]) for o in obstacles]
+        return [(o[0], o[1], o[2], jnp.zeros((), dtype), o[3], o[4]) for o in obstacles]
 
     def _collide(self, x, y, h, v, crashed, obstacles, dt):
         """``Road.step`` collision loop: vehicle pairs in road order, then each vehicle vs obstacles.
@@ -368,21 +317,32 @@ class DrivingEnv:
         Every check is ``collision.check``: the bounding-circle prefilter, then the
         separating-axis test, which ``sparse_map`` runs only for the pairs that pass
         the prefilter (a few percent of them); the others give no collision, as in
-        highway-env. The results are applied in highway-env's order.
+        highway-env. The rectangles' corners and velocities (a sine and a cosine per
+        object) are computed inside, for those pairs only. The results are applied in
+        highway-env's order.
         """
         order = self.scenario.road_order
-        shapes = [collision.Shape.make(x[i], y[i], h[i], v[i], V.LENGTH, V.WIDTH) for i in range(NUM_AGENTS)]
-        checks = []  # (i, j or None for an obstacle, first shape, second shape)
+        dtype = x.dtype
+        poses = [(x[i], y[i], h[i], v[i], jnp.asarray(V.LENGTH, dtype), jnp.asarray(V.WIDTH, dtype))
+                 for i in range(NUM_AGENTS)]
+        checks = []  # (i, j or None for an obstacle, first pose, second pose)
         for k, i in enumerate(order):
-            checks += [(i, j, shapes[i], shapes[j]) for j in order[k + 1:]]
-            checks += [(i, None, shapes[i], ob) for ob in obstacles]
-        near = jnp.stack([collision.near(a, b, dt) for _, _, a, b in checks])
-        corners_a = jnp.stack([a.corners for _, _, a, _ in checks])
-        corners_b = jnp.stack([b.corners for _, _, _, b in checks])
-        disp_a = jnp.stack([jnp.stack([a.vx, a.vy]) * dt for _, _, a, _ in checks])
-        disp_b = jnp.stack([jnp.stack([b.vx, b.vy]) * dt for _, _, _, b in checks])
-        inter_all, will_all, trans_all = sparse_map(collision.polygons_intersecting, near,
-                                                    corners_a, corners_b, disp_a, disp_b)
+            checks += [(i, j, poses[i], poses[j]) for j in order[k + 1:]]
+            checks += [(i, None, poses[i], ob) for ob in obstacles]
+        # the prefilter needs only centres, speeds and diagonals (XLA drops the unused corners)
+        near = jnp.stack([collision.near(collision.Shape.make(*a), collision.Shape.make(*b), dt)
+                          for _, _, a, b in checks])
+        pose_a = jnp.stack([jnp.stack(a) for _, _, a, _ in checks])  # [checks, 6]
+        pose_b = jnp.stack([jnp.stack(b) for _, _, _, b in checks])
+
+        def separating_axis(pa, pb):
+            a, b = collision.Shape.make(*pa), collision.Shape.make(*pb)
+            disp_a = jnp.stack([a.vx, a.vy]) * dt
+            disp_b = jnp.stack([b.vx, b.vy]) * dt
+            return collision.polygons_intersecting(a.corners, b.corners, disp_a, disp_b)
+
+        # ~1-5% of the pairs pass the prefilter
+        inter_all, will_all, trans_all = sparse_map(separating_axis, near, pose_a, pose_b, fraction=1 / 32)
         impact = [jnp.zeros(2, x.dtype) for _ in range(NUM_AGENTS)]
         has = [jnp.zeros((), bool) for _ in range(NUM_AGENTS)]
         crash = [crashed[i] for i in range(NUM_AGENTS)]

@@ -10,6 +10,7 @@ import pytest
 
 import envs_jax
 from envs_jax.env import sparse_map
+from envs_jax.sparse import _rank
 
 
 def _fn(x, y):
@@ -45,6 +46,28 @@ def test_nested_vmap_equals_dense():
     got = jax.jit(jax.vmap(jax.vmap(lambda m, a, b: sparse_map(_fn, m, a, b))))(mask, x, y)
     full = jax.vmap(jax.vmap(jax.vmap(_fn)))(x, y)
     np.testing.assert_allclose(np.asarray(got["a"]), np.asarray(jnp.where(mask[..., None], full["a"], 0)), rtol=1e-6, atol=1e-6)
+
+
+@pytest.mark.parametrize("fraction", [1 / 32, 1 / 4, 1.0])
+def test_chunk_fraction_equals_dense_where(fraction):
+    """Any chunk capacity gives the dense result, with one chunk or many (up to 90% of the rows masked)."""
+    for p in (0.02, 0.3, 0.9):
+        k1, k2, k3 = jax.random.split(jax.random.PRNGKey(int(p * 100)), 3)
+        x = jax.random.normal(k1, (500, 2, 4))
+        y = jax.random.normal(k2, (500, 2, 2))
+        mask = jax.random.uniform(k3, (500, 2)) < p
+        got = jax.jit(jax.vmap(lambda m, a, b: sparse_map(_fn, m, a, b, fraction=fraction)))(mask, x, y)
+        full = jax.vmap(jax.vmap(_fn))(x, y)
+        np.testing.assert_allclose(np.asarray(got["a"]), np.asarray(jnp.where(mask[..., None], full["a"], 0)), rtol=1e-6,
+                                   atol=1e-6)
+
+
+@pytest.mark.parametrize("n", [1, 2, 31, 32, 33, 100, 4096, 5001])
+def test_rank_equals_cumsum(n):
+    """The bit-count rank used to pack rows is ``cumsum(mask) - 1``."""
+    for p in (0.0, 0.05, 0.5, 1.0):
+        m = np.random.default_rng(n).uniform(size=n) < p
+        np.testing.assert_array_equal(np.asarray(jax.jit(_rank)(jnp.asarray(m))), np.cumsum(m) - 1)
 
 
 @pytest.mark.parametrize("name", ["merge", "roundabout", "intersection", "racetrack"])
