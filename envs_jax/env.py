@@ -213,9 +213,10 @@ class DrivingEnv:
     def _step(self, key, state, action, params, record):
         prev = state
         dt = 1.0 / self.simulation_frequency
-        # Local coordinates of each vehicle on every lane, reused by the controllers of the
-        # next frame (the vehicles do not move between the lane update and the controllers).
-        coords = self._locate(state.x, state.y, state.heading)[-1]
+        # Polar coordinates of each vehicle around the circle centres (what the lane coordinates
+        # need besides the position), reused by the controllers of the next frame (the vehicles
+        # do not move between the lane update and the controllers).
+        coords = L.circle_coords(self.road.lanes, state.x, state.y)
         if self.discrete:
             state = self._decide_discrete(state, coords, action, params)
         else:
@@ -250,14 +251,12 @@ class DrivingEnv:
     # ------------------------------------------------------------------------------------------
     def _locate(self, x, y, heading):
         """Closest lane of each vehicle, its local coordinates and on-road flag, and the
-        vehicle's local coordinates ``(s[2, L], lat[2, L])`` on every lane."""
-        cost, s_all, lat_all = L.distance_with_heading_all(self.road.lanes, x, y, heading)
-        lane = L.first_argmin(cost)
-        s = jnp.take_along_axis(s_all, lane[..., None], axis=-1)[..., 0]
-        lat = jnp.take_along_axis(lat_all, lane[..., None], axis=-1)[..., 0]
+        vehicles' polar coordinates around every circle centre (``L.circle_coords``, ``[2, C]``
+        each), from which ``L.lane_coords`` gives the local coordinates on any lane."""
+        lane, s, lat, coords = L.locate(self.road.lanes, x, y, heading)
         lengths = self.road.lanes.col("length")[lane]
         widths = self.road.lanes.col("width")[lane]
-        return lane, s, lat, L.on_lane_coords(lengths, widths, s, lat), (s_all, lat_all)
+        return lane, s, lat, L.on_lane_coords(lengths, widths, s, lat), coords
 
     def _follow_road(self, st: EnvState, coords):
         """``ControlledVehicle.follow_road`` for both vehicles: past ``length - 2.5`` of the
@@ -266,7 +265,7 @@ class DrivingEnv:
         lengths = road.lanes.col("length")
 
         tl, rp = st.target_lane, st.route_ptr
-        s = jnp.take_along_axis(coords[0], tl[:, None], axis=-1)[:, 0]
+        s, _ = L.lane_coords(road.lanes, st.x, st.y, coords, tl)
         end = s > lengths[tl] - L.VEHICLE_LENGTH / 2
         # next_lane only for the (rare) vehicles at the end of their lane.
         nl, nrp = sparse_map(road.next_lane, end, tl, s, st.route_roads, st.route_ids, st.route_len, rp,
@@ -277,17 +276,15 @@ class DrivingEnv:
         """First frame of a decision: ``follow_road`` then the meta-action (``MDPVehicle.act(a)``)."""
         st = self._follow_road(st, coords)
         ts = jnp.asarray(params.target_speeds)
-        tl, si, tsp = jax.vmap(lambda a, tl, si, s_all, lat_all, v: V.meta_action(
-            self.road, a, tl, si, s_all, lat_all, v, ts))(
-            action, st.target_lane, st.speed_index, coords[0], coords[1], st.speed)
+        tl, si, tsp = jax.vmap(lambda a, tl, si, x, y, c, v: V.meta_action(self.road, a, tl, si, x, y, c, v, ts))(
+            action, st.target_lane, st.speed_index, st.x, st.y, coords, st.speed)
         return st.replace(target_lane=tl, speed_index=si, target_speed=tsp.astype(st.x.dtype))
 
     def _frame(self, st: EnvState, coords, obstacles, dt):
         """One simulation frame: controllers (``road.act``), kinematics (``road.step``), collisions."""
         if self.discrete:
             st = self._follow_road(st, coords)
-            s_t = jnp.take_along_axis(coords[0], st.target_lane[:, None], axis=-1)[:, 0]
-            lat_t = jnp.take_along_axis(coords[1], st.target_lane[:, None], axis=-1)[:, 0]
+            s_t, lat_t = L.lane_coords(self.road.lanes, st.x, st.y, coords, st.target_lane)
             steering = jax.vmap(lambda tl, s, lat, h, v: V.steering_control(self.road.lanes, tl, s, lat, h, v))(
                 st.target_lane, s_t, lat_t, st.heading, st.speed)
             acceleration = V.speed_control(st.target_speed, st.speed)

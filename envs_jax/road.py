@@ -14,6 +14,7 @@ tables so that every query is a fixed-shape JAX function:
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -103,8 +104,7 @@ class Road:
     # -- traced queries -----------------------------------------------------------------------
     def closest_lane(self, px, py, heading):
         """``get_closest_lane_index(position, heading)``: argmin of distance-with-heading (first wins)."""
-        cost, _, _ = L.distance_with_heading_all(self.lanes, px, py, heading)
-        return jnp.argmin(cost, axis=-1).astype(jnp.int32)
+        return L.locate(self.lanes, px, py, heading)[0].astype(jnp.int32)
 
     def next_lane(self, lane, s, route_roads, route_ids, route_len, route_ptr):
         """``RoadNetwork.next_lane``: the lane to follow once ``lane`` is finished.
@@ -135,10 +135,9 @@ class Road:
         follow = has_route & (from_id[jnp.maximum(route_road, 0)] == to_id[lane_road])
         route_lane_id = route_ids[head]
 
-        # Distances of every lane to the projection of the position on the current centre line.
+        # The projection of the position on the current centre line.
         qx, qy = L.position(self.lanes, lane, s, jnp.zeros_like(s))
-        q_s, q_lat, _ = L.local_coordinates_all(self.lanes, qx, qy, with_heading=False)
-        dist = L.distance_from_coords(self.lanes.col("length"), q_s, q_lat)  # [L]
+        circles = L.circle_coords(self.lanes, qx, qy)
 
         # Candidates: every successor road (padded), each with its chosen lane and distance.
         succ = road_next[lane_road]  # [S]
@@ -150,7 +149,11 @@ class Road:
         same_count = n_next == road_num[lane_road]
         lanes_of = road_lanes[cand_roads]  # [S, M]
         lane_exists = jnp.arange(road_lanes.shape[-1])[None, :] < n_next[:, None]
-        d_all = jnp.where(lane_exists, dist[jnp.maximum(lanes_of, 0)], jnp.inf)
+        # distance of the projection to each candidate lane (only those: S x M lanes, not all)
+        cand = jnp.maximum(lanes_of, 0)
+        q_s, q_lat = L.lane_coords(self.lanes, qx, qy, jax.tree_util.tree_map(lambda a: a[None, None], circles), cand)
+        dist = L.distance_from_coords(self.lanes.col("length")[cand], q_s, q_lat)  # [S, M]
+        d_all = jnp.where(lane_exists, dist, jnp.inf)
         closest_id = jnp.argmin(d_all, axis=-1)
         keep_id = jnp.where(follow & (route_lane_id >= 0), route_lane_id, lane_id)
         keep_id = jnp.minimum(keep_id, n_next - 1)

@@ -115,13 +115,13 @@ def speed_to_index(speed, target_speeds):
     return jnp.clip(jnp.round(x * (n - 1)), 0, n - 1).astype(jnp.int32)
 
 
-def meta_action(road, action, target_lane, speed_index, s_all, lat_all, speed, target_speeds):
+def meta_action(road, action, target_lane, speed_index, x, y, circles, speed, target_speeds):
     """Apply one discrete meta-action (``MDPVehicle.act``) to the target lane and speed index.
 
     FASTER/SLOWER re-index from the *current* speed (+-1, clipped). LANE_LEFT/RIGHT
     move the target lane id by -+1 on the same road (clipped) and are accepted
-    only if the new lane ``is_reachable_from`` the position (``s_all, lat_all``:
-    the position's local coordinates on every lane). Returns
+    only if the new lane ``is_reachable_from`` the position ``x, y`` (``circles``: its
+    ``L.circle_coords``). Returns
     ``(target_lane, speed_index, target_speed)``.
     """
     n = target_speeds.shape[-1]
@@ -139,7 +139,7 @@ def meta_action(road, action, target_lane, speed_index, s_all, lat_all, speed, t
     candidate = jnp.asarray(road.road_lanes)[lane_road, cand_id]
     lane_width = road.lanes.col("width")[candidate]
     lane_length = road.lanes.col("length")[candidate]
-    cs, clat = s_all[candidate], lat_all[candidate]
+    cs, clat = L.lane_coords(road.lanes, x, y, circles, candidate)
     reachable = ((jnp.abs(clat) <= 2 * lane_width) & (0 <= cs) & (cs < lane_length + L.VEHICLE_LENGTH)
                  & ~jnp.asarray(road.lanes.forbidden)[candidate])
     changes_lane = (action == LANE_LEFT) | (action == LANE_RIGHT)
