@@ -38,14 +38,28 @@ __all__ = ["run", "evaluate_checkpoint", "use_all_cpu_cores", "seed_sharding", "
 # about 50x slower than XLA's own loop emitter (~1 ms instead of ~20 us per call); without them the MAPPO-L
 # update is 2-3x faster (benchmarks/train_onpolicy.py). Numerics are unchanged up to summation order.
 XLA_CPU_FLAGS = ("--xla_cpu_experimental_ynn_fusion_type=-reduce",)
+# The first jaxlib that knows the flag (YNNPACK fusions are on by default from 0.10.2); an older XLA aborts the
+# process on an unknown XLA_FLAGS entry, and has no YNNPACK fusions to turn off.
+XLA_CPU_FLAGS_SINCE = (0, 10, 1)
+
+
+def _jaxlib_version() -> tuple[int, ...]:
+    import re
+
+    import jaxlib
+
+    version = getattr(jaxlib, "__version__", None) or jaxlib.version.__version__
+    return tuple(int(x) for x in re.findall(r"\d+", version)[:3])
 
 
 def use_all_cpu_cores() -> bool:
     """Expose every CPU core as its own JAX device so that seeds run on all cores in parallel (XLA:CPU runs the
     critics' small matrix products on one thread), and add :data:`XLA_CPU_FLAGS` to ``XLA_FLAGS`` (unless
-    ``XLA_FLAGS`` already sets them). Must run before JAX executes anything; returns success."""
+    ``XLA_FLAGS`` already sets them, or jaxlib predates them). Must run before JAX executes anything; returns
+    success."""
     flags = os.environ.get("XLA_FLAGS", "")
-    extra = [f for f in XLA_CPU_FLAGS if f.split("=")[0] not in flags]
+    known = _jaxlib_version() >= XLA_CPU_FLAGS_SINCE
+    extra = [f for f in XLA_CPU_FLAGS if known and f.split("=")[0] not in flags]
     if extra:
         os.environ["XLA_FLAGS"] = " ".join([flags] + extra).strip()
     try:
