@@ -184,3 +184,16 @@ def test_figure_legend_has_one_authors_entry_per_algorithm(tmp_path, monkeypatch
                 episodes=dict(episodes, end_step=episodes["end_step"] * 10))
     figures.plot_scenario("roundabout", {"csq": run, "sq": long}, str(tmp_path / "r2"))
     assert seen["xscales"] == {"log"}
+
+
+def test_runs_whose_envs_ran_few_episode_limits_are_flagged():
+    """512 envs x 64 steps on the racetrack (episodes up to 40 s x 5 Hz = 200 decisions): only short episodes can
+    finish, so the figures and the report must flag the run; one env x 2000 steps is 10 episode limits, not flagged."""
+    from train import figures
+
+    ppo = {"config": {"algo": "macpo", "num_envs": 512, "total_steps": 32768}}
+    maddpg = {"config": {"algo": "cs-maddpg", "num_envs": 1, "total_steps": 2000}}
+    assert figures.episode_limit("racetrack") == 200 and figures.episode_limit("merge") == 20
+    assert figures.short_runs("racetrack", {"macpo": ppo, "cs-maddpg": maddpg}) == [
+        "MACPO: 512 envs x 64 steps, episodes up to 200"]
+    assert figures.short_runs("intersection", {"cs-maddpg": maddpg}) == []

@@ -46,15 +46,16 @@ DEFAULT_SEEDS = 10
 # with its compilations, a greedy evaluation and a GIF) in under 15 minutes on an idle 2-core CPU. Every run has 4
 # seeds (an even count: seeds are split over both cores, train.run.seed_sharding; 5 seeds ran on one core) and a
 # budget that is a whole number of chunks (2500 steps in 1000-step chunks compiled a second, 500-step program).
-# Per-run fixed costs dominate: compiling init, the chunk, the evaluation and the GIF's episode takes 25-35 s of
-# CPU per run (more for MAPPO-L/MACPO: 512 envs), about as much as the training below.
 # Measured 2026-11-30 with `python -m train.experiments --quick --out /tmp/quick_study` on the shared 2-core CPU
-# while other jobs kept the load average at 5-7 (so wall-clock times are 1.5-3x an idle machine's): with one
-# third more steps for MADDPG and roundabout than below, 19m38s wall, 12m41s CPU (user+sys, which bounds the
-# idle wall time from above). Per run (wall, loaded): train 8-85 s, chunk compilation 14-42 s, other (init with
-# its compilation, evaluation, checkpoints) 3-46 s, GIF 4-13 s; figures and RESULTS.md 8 s. Where the time went
-# before these budgets (now cut): 5 seeds ran on one core, 2500-step budgets compiled a second (tail) chunk, the
-# evaluation scanned 200 steps of 20-step episodes, and each GIF's road was drawn op by op (5-18 s per scenario).
+# while other jobs kept the load average at 4-6 (so wall-clock times are pessimistic, by up to ~2-3x): 15m08s wall,
+# 11m08s CPU (user+sys; on an idle machine the wall time should be below that, as training uses both cores).
+# Per run (wall, loaded): 45-101 s = training 10-41 s + chunk compilation 11-46 s + other 4-39 s (init and its
+# compilation -- shared through the compilation cache by CSQ/SQ and MAPPO-L/MACPO --, evaluation, checkpoints)
+# + GIF 4-10 s; figures and RESULTS.md 11 s. Fixed costs (compilation) now outweigh training (277 s of 900 s).
+# Cut before these budgets: 5 seeds ran on one core, 2500-step budgets compiled a second (tail) chunk, the
+# evaluation scanned 200 steps of 20-step episodes, each GIF's road was drawn op by op (5-18 s per scenario).
+# With 4000 roundabout and 3000 MADDPG steps: 19m38s wall, 12m41s CPU (load 5-7). Learning shows in merge
+# (CSQ crash rate 0.75 -> 0.1) and roundabout (total return 20 -> 55-60); MADDPG barely starts in 2000 steps.
 QUICK: dict[tuple[str, str], dict] = {
     ("merge", "csq"): {"total_steps": 6000, "num_seeds": 4},
     ("merge", "sq"): {"total_steps": 6000, "num_seeds": 4},

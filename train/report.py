@@ -210,8 +210,11 @@ def _honesty(all_runs: dict[str, dict[str, dict]]) -> list[str]:
             beats = sign_r > 0 and sign_c <= 0
             verdict = ("CS-MADDPG beats it, as the paper says" if beats else
                        "the paper's claim that CS-MADDPG beats it is not confirmed by these runs")
+            censored = short_runs(scenario, {base: runs[base]})
+            censored = (f" {label(base)}'s training statistics over-represent short (crashed) episodes "
+                        f"({censored[0].split(': ', 1)[1]}; see the caution below)." if censored else "")
             out.append(f"- **{scenario}, does CS-MADDPG beat {label(base)}?** {s1} {s2} Verdict: {verdict}."
-                       f"{_short_budget(scenario, runs['cs-maddpg'])}")
+                       f"{_short_budget(scenario, runs['cs-maddpg'])}{censored}")
         if scenario == "racetrack":
             d = lambda run: interval([a + b for a, b in zip(final_per_seed(run, "leader_distance"),
                                                              final_per_seed(run, "follower_distance"))])
