@@ -197,3 +197,14 @@ def test_runs_whose_envs_ran_few_episode_limits_are_flagged():
     assert figures.short_runs("racetrack", {"macpo": ppo, "cs-maddpg": maddpg}) == [
         "MACPO: 512 envs x 64 steps, episodes up to 200"]
     assert figures.short_runs("intersection", {"cs-maddpg": maddpg}) == []
+
+
+def test_wall_time_of_a_retrained_run_does_not_add_the_previous_one():
+    """study.json's wall_s adds up the invocations of a kept or resumed run; an --overwrite (trained from scratch)
+    starts again from zero."""
+    prev = {"wall_s": 100.0}
+    assert experiments._carried_wall(prev, "trained") == 0.0
+    assert experiments._carried_wall(prev, "trained (interrupted)") == 0.0
+    assert experiments._carried_wall(prev, "resumed") == 100.0
+    assert experiments._carried_wall(prev, "kept (different config)") == 100.0
+    assert experiments._carried_wall({}, "kept") == 0.0

@@ -250,8 +250,8 @@ def run_study(out: str, only=None, quick: bool = False, seeds: int | None = None
         for item in items:
             key = f"{item['scenario']}_{item['algo']}"
             status = run_one(item, study_dir, overwrite, gifs, verbose)
-            prev = study["runs"].get(key, {})
-            status["wall_s"] = prev.get("wall_s", 0.0) + status.pop("train_wall_s", 0.0)
+            status["wall_s"] = _carried_wall(study["runs"].get(key, {}), status["status"]) + \
+                status.pop("train_wall_s", 0.0)
             status.pop("config", None)
             study["runs"][key] = status
             _write_json(path, study)
@@ -265,6 +265,12 @@ def run_study(out: str, only=None, quick: bool = False, seeds: int | None = None
     _write_json(path, study)
     _say(f"wrote {report_path} ({study['last_invocation_s']:.0f} s)", verbose)
     return study
+
+
+def _carried_wall(prev: dict, status: str) -> float:
+    """The wall-clock time of earlier invocations that still counts for a run: all of it when the run was kept or
+    resumed, none when it was (re)trained from scratch (e.g. ``--overwrite``)."""
+    return float(prev.get("wall_s", 0.0)) if status.startswith(("kept", "resumed")) else 0.0
 
 
 def _write_json(path: str, obj) -> None:
