@@ -5,10 +5,10 @@
 
 Uses each scenario's configuration (``train/configs/<scenario>_<algo>.json``: num_envs x rollout_length samples per
 update); ``--num-envs`` overrides it. Compiles one chunk of ``--cycles`` rollout+update cycles ahead of time, runs it
-once to warm up and then ``--repeats`` times (median). "all seeds" counts every seed's steps. The programs and
-XLA flags are those of ``python -m train`` (:func:`train.run.seed_parallel`, :func:`train.run.use_all_cpu_cores`).
-Writes ``benchmarks/results/train_onpolicy.json`` with the machine's load average: on a shared CPU the figures
-are low.
+once to warm up and then ``--repeats`` times (median wall and process CPU time). "all seeds" counts every
+seed's steps. The programs and XLA flags are those of ``python -m train`` (:func:`train.run.seed_parallel`,
+:func:`train.run.use_all_cpu_cores`). Writes ``benchmarks/results/train_onpolicy.json`` with the machine's load
+average: on a shared CPU the wall-clock figures are low.
 """
 
 from __future__ import annotations
@@ -47,18 +47,22 @@ def bench(scenario: str, algo: str, seeds: int, cycles: int, repeats: int, num_e
     compile_s = time.perf_counter() - t0
     state, m = chunk(state, jnp.int32(0))
     jax.block_until_ready(m)
-    times = []
+    times, cpu = [], []
     for _ in range(repeats):
-        t = time.perf_counter()
+        t, c = time.perf_counter(), time.process_time()
         state, m = chunk(state, jnp.int32(0))
         jax.block_until_ready(m)
         times.append(time.perf_counter() - t)
-    dt = statistics.median(times)
+        cpu.append(time.process_time() - c)
+    dt, cpu_s = statistics.median(times), statistics.median(cpu)
     steps = cycle * cycles
     return {"scenario": scenario, "algo": algo, "seeds": seeds, "num_envs": cfg["num_envs"],
             "rollout_length": cfg["rollout_length"], "num_minibatches": cfg["num_minibatches"],
             "steps_per_seed": steps, "compile_s": round(compile_s, 2), "chunk_s_median": round(dt, 3),
             "steps_per_s_per_seed": round(steps / dt, 1), "steps_per_s_all_seeds": round(seeds * steps / dt, 1),
+            # CPU time of this process (all its threads): on a shared machine the wall-clock rate mostly measures
+            # the other processes; steps per CPU-second x cores is what an idle machine would give at best.
+            "cpu_s_median": round(cpu_s, 3), "steps_per_cpu_s_all_seeds": round(seeds * steps / cpu_s, 1),
             "load_avg_1min": os.getloadavg()[0]}
 
 
