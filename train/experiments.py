@@ -54,6 +54,8 @@ DEFAULT_SEEDS = 10
 # + GIF 4-10 s; figures and RESULTS.md 11 s. Fixed costs (compilation) now outweigh training (277 s of 900 s).
 # Cut before these budgets: 5 seeds ran on one core, 2500-step budgets compiled a second (tail) chunk, the
 # evaluation scanned 200 steps of 20-step episodes, each GIF's road was drawn op by op (5-18 s per scenario).
+# A re-run (--overwrite; every program from the compilation cache, results bit-identical) took 8m37s wall, 5m52s
+# CPU at load ~5, each run's fixed costs (compile, other, GIF) down to 10-20 s.
 # With 4000 roundabout and 3000 MADDPG steps: 19m38s wall, 12m41s CPU (load 5-7). Learning shows in merge
 # (CSQ crash rate 0.75 -> 0.1) and roundabout (total return 20 -> 55-60); MADDPG barely starts in 2000 steps.
 QUICK: dict[tuple[str, str], dict] = {
