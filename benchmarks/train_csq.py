@@ -24,7 +24,7 @@ import jax.numpy as jnp  # noqa: E402
 
 from train.config import load_config  # noqa: E402
 from train.loop import make_train, seed_keys  # noqa: E402
-from train.run import seed_sharding, use_all_cpu_cores  # noqa: E402
+from train.run import seed_parallel, use_all_cpu_cores  # noqa: E402
 
 
 def bench(seeds: int, steps: int, chunk_steps: int, scenario: str, algo: str) -> dict:
@@ -32,17 +32,16 @@ def bench(seeds: int, steps: int, chunk_steps: int, scenario: str, algo: str) ->
                                            checkpoint_every=0, eval_episodes=0))
     trainer = make_train(cfg)
     keys = seed_keys(cfg)
-    sh = seed_sharding(seeds)  # seeds split over the CPU cores, as python -m train does
-    outs = None if sh is None else (sh, sh)
+    # the programs python -m train runs: seeds split over the CPU cores, one independent program per device
     t0 = time.perf_counter()
-    init = jax.jit(jax.vmap(trainer.init), out_shardings=sh).lower(keys).compile()
+    init = seed_parallel(trainer.init, seeds).lower(keys).compile()
     state = init(keys)
     jax.block_until_ready(state)
-    chunk = jax.jit(jax.vmap(trainer.run_chunk, in_axes=(0, None)), donate_argnums=0, out_shardings=outs).lower(
+    chunk = seed_parallel(trainer.run_chunk, seeds, in_axes=(0, None), donate_argnums=0).lower(
         state, jnp.int32(0)).compile()
     tail = None
     if trainer.run_tail is not None:
-        tail = jax.jit(jax.vmap(trainer.run_tail, in_axes=(0, None)), donate_argnums=0, out_shardings=outs).lower(
+        tail = seed_parallel(trainer.run_tail, seeds, in_axes=(0, None), donate_argnums=0).lower(
             state, jnp.int32(0)).compile()
     compile_s = time.perf_counter() - t0
     load0 = os.getloadavg()[0]

@@ -28,7 +28,7 @@ import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 
 from train.config import load_config  # noqa: E402
-from train.run import seed_sharding, use_all_cpu_cores  # noqa: E402
+from train.run import seed_parallel, seed_sharding, use_all_cpu_cores  # noqa: E402
 
 RESULTS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results", "train_maddpg.json")
 
@@ -61,7 +61,7 @@ def profile_update(seeds: int, scenario: str, algo: str, n: int = 300) -> dict:
     def many(s, b):
         return jax.lax.scan(lambda c, _: (agent.update(c, b, jax.random.PRNGKey(0))[0], None), s, None, length=n)[0]
 
-    f = jax.jit(jax.vmap(many)).lower(st, batch).compile()
+    f = seed_parallel(many, seeds).lower(st, batch).compile()
     jax.block_until_ready(f(st, batch))
     t = time.perf_counter()
     jax.block_until_ready(f(st, batch))
