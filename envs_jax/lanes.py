@@ -351,20 +351,9 @@ BOUND_SLACK_ABS = 1e-2
 BOUND_SLACK_REL = 1e-5
 
 
-def _opaque_table(lanes: LaneTable):
-    """The lane table as a value XLA cannot see through (``optimization_barrier``).
-
-    As compile-time constants the lane numbers invite rewrites that change the rounding
-    (``x / c`` becomes ``x * (1 / c)``); mathematically equal costs of two lanes
-    (racetrack's concentric arcs) must round as in highway-env to tie-break as it does.
-    """
-    return jax.lax.optimization_barrier(jnp.asarray(lanes.table, dtype=float_dtype()))
-
-
-def _cols(table, rows, names):
-    """Columns ``names`` of the table ``rows`` as ``[len(rows), 1]`` arrays."""
-    rows = np.asarray(rows, dtype=np.int32)
-    return {name: table[rows, _COL[name]][:, None] for name in names}
+def _cols(lanes: LaneTable, rows, names):
+    """Columns ``names`` of the lanes ``rows`` as ``[len(rows), 1]`` constants."""
+    return {name: lanes.col(name, np.asarray(rows, dtype=np.int32))[:, None] for name in names}
 
 
 def circle_coords(lanes: LaneTable, px, py):
@@ -397,7 +386,7 @@ def lane_coords(lanes: LaneTable, px, py, circles, idx, sine: bool = True):
     names = ["start_x", "start_y", "dir_x", "dir_y", "lat_x", "lat_y"]
     names += ["amplitude", "pulsation", "phase"] if sine else []
     names += ["start_phase", "cdir", "radius"] if lanes.circular_rows.size else []
-    table = _opaque_table(lanes)[:, np.array([_COL[n] for n in names])][idx]
+    table = jnp.asarray(lanes.table[:, [_COL[n] for n in names]], dtype=float_dtype())[idx]
     r = {n: table[..., i] for i, n in enumerate(names)}
     kind = jnp.asarray(lanes.kind)[idx]
     s, lat = _linear_local(r, px, py)
@@ -434,7 +423,7 @@ def _first_min(cost, rows, size):
 def _sine_family(lanes: LaneTable, px, py, heading):
     """Exact cost on every sine lane for one pose: the least, its first table row and the
     lateral coordinate on that lane."""
-    r = {k: v[:, 0] for k, v in _cols(_opaque_table(lanes), lanes.sine_rows, _FIELDS).items()}
+    r = {k: v[:, 0] for k, v in _cols(lanes, lanes.sine_rows, _FIELDS).items()}
     s, lat = _linear_local(r, px, py)
     lat = lat - _sine_offset(r, s)
     h = r["heading"] + jnp.arctan(r["amplitude"] * r["pulsation"] * jnp.cos(r["pulsation"] * s + r["phase"]))
@@ -447,18 +436,17 @@ def _sine_family(lanes: LaneTable, px, py, heading):
 
 def _locate_flat(lanes: LaneTable, px, py, heading):
     """:func:`locate` on flat ``[n]`` poses, lanes major (``[L, n]`` arrays)."""
-    table = _opaque_table(lanes)
     circles = circle_coords(lanes, px, py)  # [n, C]
     phi_t, radius_t = circles[0].T, circles[1].T  # [C, n]
     costs, rows = [], []
     if lanes.straight_rows.size:
-        r = _cols(table, lanes.straight_rows, ("start_x", "start_y", "dir_x", "dir_y", "lat_x", "lat_y",
+        r = _cols(lanes, lanes.straight_rows, ("start_x", "start_y", "dir_x", "dir_y", "lat_x", "lat_y",
                                                "length", "heading"))
         s, lat = _linear_local(r, px, py)
         costs.append(distance_from_coords(r["length"], s, lat) + jnp.abs(wrap_to_pi(heading - r["heading"])))
         rows.append(lanes.straight_rows)
     if lanes.circular_rows.size:
-        r = _cols(table, lanes.circular_rows, ("start_phase", "cdir", "radius", "length"))
+        r = _cols(lanes, lanes.circular_rows, ("start_phase", "cdir", "radius", "length"))
         c = lanes.circle_of_row
         s, lat = _circular_from_polar(r, phi_t[c], radius_t[c])
         h = r["cdir"] * s / r["radius"] + r["start_phase"] + jnp.pi / 2 * r["cdir"]
@@ -472,7 +460,7 @@ def _locate_flat(lanes: LaneTable, px, py, heading):
         lane = jnp.full(px.shape, lanes.size - 1, jnp.int32)
         s = lat = jnp.zeros_like(px)
     if lanes.sine_rows.size:
-        r = _cols(table, lanes.sine_rows, ("start_x", "start_y", "dir_x", "dir_y", "lat_x", "lat_y", "length",
+        r = _cols(lanes, lanes.sine_rows, ("start_x", "start_y", "dir_x", "dir_y", "lat_x", "lat_y", "length",
                                            "heading", "amplitude", "pulsation"))
         s_sine, lat_base = _linear_local(r, px, py)
         bound = sine_lower_bound(r, s_sine, lat_base, heading)

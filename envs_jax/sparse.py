@@ -55,6 +55,11 @@ def packed_rows(vfn, mask, *args, fraction: float = 1 / 8):
     cap = n if n <= 64 else min(n, max(64, int(n * fraction)))  # static chunk capacity
     size = -(-n // cap) * cap
     count = jnp.sum(mask.astype(jnp.int32))
+    if cap == n:  # one chunk holds every row (few envs): no packing, all rows when any is masked
+        zeros = jax.tree_util.tree_map(lambda s: jnp.zeros(s.shape, s.dtype), jax.eval_shape(vfn, *args))
+        res = jax.lax.cond(count > 0, lambda: vfn(*args), lambda: zeros)
+        return jax.tree_util.tree_map(
+            lambda r: jnp.where(mask.reshape(mask.shape + (1,) * (r.ndim - 1)), r, jnp.zeros_like(r)), res)
     # packed[r] = index of the r-th masked row (n past the last one), built once for all chunks
     slot = jnp.where(mask, _rank(mask), size)
     packed = jnp.full(size, n, jnp.int32).at[slot].set(jnp.arange(n, dtype=jnp.int32), mode="drop")
