@@ -478,6 +478,17 @@ def _locate_flat(lanes: LaneTable, px, py, heading):
     return lane, s, lat, circles
 
 
+SMALL_BATCH = 8  # up to this many poses in all, locate runs the all-lane search (_locate_dense)
+
+
+def _locate_dense(lanes: LaneTable, px, py, heading):
+    """:func:`locate` by the all-lane search (``first_argmin`` of :func:`distance_with_heading_all`)."""
+    cost, s_all, lat_all = distance_with_heading_all(lanes, px, py, heading)
+    lane = first_argmin(cost)
+    pick = lambda a: jnp.take_along_axis(a, lane[..., None], axis=-1)[..., 0]
+    return lane, pick(s_all), pick(lat_all), circle_coords(lanes, px, py)
+
+
 def locate(lanes: LaneTable, px, py, heading):
     """Closest lane of a pose (``get_closest_lane_index``: the first lane in table order with the
     least distance-with-heading), the exact ``(s, lat)`` on it, and :func:`circle_coords`.
@@ -488,14 +499,18 @@ def locate(lanes: LaneTable, px, py, heading):
     sine lane's :func:`sine_lower_bound` is within a slack of the best other cost, packed
     (``sparse.packed_rows``); elsewhere no sine lane can be the closest or tie with it.
     Under ``vmap`` (custom rule) the whole batch is flattened and the lanes are laid out
-    major. Shapes: ``px, py, heading`` ``[...]``; returns ``lane, s, lat`` ``[...]`` and
+    major; with at most ``SMALL_BATCH`` poses in all (one to four envs), where the cost is
+    the number of XLA ops rather than arithmetic, the all-lane search runs instead. Shapes: ``px, py, heading`` ``[...]``; returns ``lane, s, lat`` ``[...]`` and
     ``circles`` (``[..., C]`` each).
     """
     px, py, heading = jnp.broadcast_arrays(jnp.asarray(px), jnp.asarray(py), jnp.asarray(heading))
     shape = px.shape
 
     def run(n_lead, px, py, heading):
-        out = _locate_flat(lanes, px.reshape(-1), py.reshape(-1), heading.reshape(-1))
+        if px.size <= SMALL_BATCH:  # a few poses: the all-lane search runs fewer (per-op bound) ops
+            out = _locate_dense(lanes, px.reshape(-1), py.reshape(-1), heading.reshape(-1))
+        else:
+            out = _locate_flat(lanes, px.reshape(-1), py.reshape(-1), heading.reshape(-1))
         lead = n_lead + shape
         lane, s, lat, (phi, rad) = out
         return (lane.reshape(lead), s.reshape(lead), lat.reshape(lead),
