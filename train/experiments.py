@@ -58,6 +58,8 @@ DEFAULT_SEEDS = 10
 # CPU at load ~5, each run's fixed costs (compile, other, GIF) down to 10-20 s.
 # With 4000 roundabout and 3000 MADDPG steps: 19m38s wall, 12m41s CPU (load 5-7). Learning shows in merge
 # (CSQ crash rate 0.75 -> 0.1) and roundabout (total return 20 -> 55-60); MADDPG barely starts in 2000 steps.
+# Re-measured on the idle 2-core machine (2026-11-30 02:25 UTC, after the roundabout speed-up, fresh --out and cache):
+# the whole --quick study in 6 min 45 s wall, 10 min 22 s CPU.
 QUICK: dict[tuple[str, str], dict] = {
     ("merge", "csq"): {"total_steps": 6000, "num_seeds": 4},
     ("merge", "sq"): {"total_steps": 6000, "num_seeds": 4},
