@@ -44,22 +44,12 @@ DEFAULT_SEEDS = 10
 
 # --quick budgets per (scenario, algo): overrides of the run configuration. Target: the whole study (12 runs, each
 # with its compilations, a greedy evaluation and a GIF) in under 15 minutes on an idle 2-core CPU. Every run has 4
-# seeds (an even count: seeds are split over both cores, train.run.seed_sharding; 5 seeds ran on one core) and a
-# budget that is a whole number of chunks (2500 steps in 1000-step chunks compiled a second, 500-step program).
-# Measured 2026-11-30 with `python -m train.experiments --quick --out /tmp/quick_study` on the shared 2-core CPU
-# while other jobs kept the load average at 4-6 (so wall-clock times are pessimistic, by up to ~2-3x): 15m08s wall,
-# 11m08s CPU (user+sys; on an idle machine the wall time should be below that, as training uses both cores).
-# Per run (wall, loaded): 45-101 s = training 10-41 s + chunk compilation 11-46 s + other 4-39 s (init and its
-# compilation -- shared through the compilation cache by CSQ/SQ and MAPPO-L/MACPO --, evaluation, checkpoints)
-# + GIF 4-10 s; figures and RESULTS.md 11 s. Fixed costs (compilation) now outweigh training (277 s of 900 s).
-# Cut before these budgets: 5 seeds ran on one core, 2500-step budgets compiled a second (tail) chunk, the
-# evaluation scanned 200 steps of 20-step episodes, each GIF's road was drawn op by op (5-18 s per scenario).
-# A re-run (--overwrite; every program from the compilation cache, results bit-identical) took 8m37s wall, 5m52s
-# CPU at load ~5, each run's fixed costs (compile, other, GIF) down to 10-20 s.
-# With 4000 roundabout and 3000 MADDPG steps: 19m38s wall, 12m41s CPU (load 5-7). Learning shows in merge
-# (CSQ crash rate 0.75 -> 0.1) and roundabout (total return 20 -> 55-60); MADDPG barely starts in 2000 steps.
-# Re-measured on the idle 2-core machine (2026-11-30 02:25 UTC, after the roundabout speed-up, fresh --out and cache):
-# the whole --quick study in 6 min 45 s wall, 10 min 22 s CPU.
+# seeds (an even count: seeds are split over both cores) and a budget that is a whole number of chunks (a partial
+# last chunk compiles a second program). Measured 2026-11-30, `python -m train.experiments --quick --out DIR` with a
+# fresh DIR: 6 min 45 s wall, 10 min 22 s CPU on the idle machine; 15 min 08 s wall at load 4-6 from other jobs.
+# Compilation costs more than training at these budgets; a re-run finds its programs in DIR/jax_cache. Learning
+# shows in merge (CSQ crash rate 0.75 -> 0.1) and roundabout (total return 20 -> 55-60); MADDPG barely starts in
+# 2000 steps; MAPPO-L/MACPO get 4 updates of 512 envs x 16 steps.
 QUICK: dict[tuple[str, str], dict] = {
     ("merge", "csq"): {"total_steps": 6000, "num_seeds": 4},
     ("merge", "sq"): {"total_steps": 6000, "num_seeds": 4},
