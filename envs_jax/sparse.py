@@ -22,14 +22,7 @@ def sparse_map(fn, mask, *args, fraction: float = 1 / 8):
     arithmetic differently (an ulp at most; tests/test_sparse_map.py).
     """
     vfn = jax.vmap(fn)
-
-    def dense(mask, *args):
-        out = jax.eval_shape(vfn, *args)
-        zeros = jax.tree_util.tree_map(lambda s: jnp.zeros(s.shape, s.dtype), out)
-        res = jax.lax.cond(jnp.any(mask), lambda: vfn(*args), lambda: zeros)
-        return jax.tree_util.tree_map(lambda r: jnp.where(mask.reshape(mask.shape + (1,) * (r.ndim - 1)), r, jnp.zeros_like(r)), res)
-
-    f = jax.custom_batching.custom_vmap(dense)
+    f = jax.custom_batching.custom_vmap(lambda mask, *args: _all_rows(vfn, mask, *args))
 
     @f.def_vmap
     def rule(axis_size, in_batched, mask, *args):
@@ -53,13 +46,10 @@ def packed_rows(vfn, mask, *args, fraction: float = 1 / 8):
     masked rows. ``sparse_map``'s batching rule, usable directly on flat rows."""
     n = mask.shape[0]
     cap = n if n <= 64 else min(n, max(64, int(n * fraction)))  # static chunk capacity
+    if cap == n:  # one chunk holds every row (few envs): no packing
+        return _all_rows(vfn, mask, *args)
     size = -(-n // cap) * cap
     count = jnp.sum(mask.astype(jnp.int32))
-    if cap == n:  # one chunk holds every row (few envs): no packing, all rows when any is masked
-        zeros = jax.tree_util.tree_map(lambda s: jnp.zeros(s.shape, s.dtype), jax.eval_shape(vfn, *args))
-        res = jax.lax.cond(count > 0, lambda: vfn(*args), lambda: zeros)
-        return jax.tree_util.tree_map(
-            lambda r: jnp.where(mask.reshape(mask.shape + (1,) * (r.ndim - 1)), r, jnp.zeros_like(r)), res)
     # packed[r] = index of the r-th masked row (n past the last one), built once for all chunks
     slot = jnp.where(mask, _rank(mask), size)
     packed = jnp.full(size, n, jnp.int32).at[slot].set(jnp.arange(n, dtype=jnp.int32), mode="drop")
@@ -75,6 +65,14 @@ def packed_rows(vfn, mask, *args, fraction: float = 1 / 8):
 
     _, out = jax.lax.while_loop(lambda carry: carry[0] * cap < count, chunk, (jnp.zeros((), jnp.int32), out))
     return out
+
+
+def _all_rows(vfn, mask, *args):
+    """``vfn`` on every row when any row is masked (one ``cond``), masked rows kept, zeros elsewhere."""
+    zeros = jax.tree_util.tree_map(lambda s: jnp.zeros(s.shape, s.dtype), jax.eval_shape(vfn, *args))
+    res = jax.lax.cond(jnp.any(mask), lambda: vfn(*args), lambda: zeros)
+    return jax.tree_util.tree_map(
+        lambda r: jnp.where(mask.reshape(mask.shape + (1,) * (r.ndim - 1)), r, jnp.zeros_like(r)), res)
 
 
 def _rank(mask, block: int = 32):
