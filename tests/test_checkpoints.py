@@ -1,7 +1,11 @@
-"""Orbax checkpoints: exact round trip, atomic saves, and bit-identical resume of a real training run."""
+"""Orbax checkpoints: exact round trip, atomic saves, and bit-identical resume of real training runs (off-policy
+on one device; on-policy with the seeds split over two devices)."""
 
 import json
 import os
+import subprocess
+import sys
+import textwrap
 
 import jax
 import jax.numpy as jnp
@@ -12,6 +16,8 @@ from jaxsmarl import buffers
 from jaxsmarl.checkpoints import Checkpointer
 from train.config import load_config
 from train.run import run
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
 def _leaves_equal(a, b) -> bool:
@@ -100,3 +106,59 @@ def test_resume_and_overwrite_guards(tmp_path, small_config):
         run(dict(cfg, lr=1e-4), out, resume=True, verbose=False)
     with open(os.path.join(out, "config.json")) as f:
         assert json.load(f)["lr"] == cfg["lr"]
+
+
+# ---------------------------------------------------------------------------------------------------------
+# The same for an on-policy run (MAPPO-L) whose seeds are split over two CPU devices (train.run.seed_parallel).
+# The device count is fixed when JAX starts, so this runs in a fresh interpreter and reports back as JSON.
+
+_TWO_DEVICE_RESUME = textwrap.dedent("""
+    import json, sys
+    import jax
+    jax.config.update("jax_num_cpu_devices", 2)
+    import numpy as np
+    from train.config import load_config
+    from train.run import run
+
+    def equal(a, b):
+        la, lb = jax.tree.leaves(a), jax.tree.leaves(b)
+        return len(la) == len(lb) and all(np.asarray(x).dtype == np.asarray(y).dtype
+                                          and np.array_equal(np.asarray(x), np.asarray(y)) for x, y in zip(la, lb))
+
+    def placement(state):  # per leaf: devices holding it, and the seeds each device holds
+        return sorted({(len(x.sharding.device_set), tuple(sorted(s.data.shape[0] for s in x.addressable_shards)))
+                       for x in jax.tree.leaves(state)})
+
+    tmp = sys.argv[1]
+    cfg = load_config("intersection", "mappo-l", dict(
+        total_steps=256, num_seeds=2, num_envs=8, rollout_length=8, num_minibatches=2, ppo_epochs=2,
+        chunk_steps=64, checkpoint_every=64, eval_episodes=0))  # 4 chunks of one rollout + update each
+    straight = run(cfg, tmp + "/a", verbose=False)
+    part = run(cfg, tmp + "/b", verbose=False, max_chunks=2)  # same compiled program (memoised per process)
+    part_differs = not equal(part["state"].agent, straight["state"].agent)
+    resumed = run(cfg, tmp + "/b", resume=True, verbose=False)
+    csv = [open(tmp + d + "/episodes.csv").read() for d in ("/a", "/b")]
+    print(json.dumps({
+        "devices": len(jax.devices()), "placement": placement((straight["state"], resumed["state"])),
+        "finished": [part["summary"]["finished"], resumed["summary"]["finished"]], "part_differs": part_differs,
+        "equal": equal(straight["state"], resumed["state"]), "csv_equal": csv[0] == csv[1],
+        "episodes": len(straight["log"].rows), "iteration": np.asarray(resumed["state"].iteration).tolist(),
+        "segments": resumed["summary"]["timing"]["segments"]}))
+""")
+
+
+def test_onpolicy_resume_on_two_devices_is_bit_identical(tmp_path):
+    env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}  # conftest pins one device
+    env["PYTHONPATH"] = ROOT + os.pathsep + env.get("PYTHONPATH", "")
+    res = subprocess.run([sys.executable, "-c", _TWO_DEVICE_RESUME, str(tmp_path)], capture_output=True,
+                         text=True, env=env, cwd=ROOT, timeout=600)
+    assert res.returncode == 0, res.stderr[-3000:]
+    out = json.loads(res.stdout.strip().splitlines()[-1])
+    assert out["devices"] == 2
+    # every leaf of both final states split over the two devices, one seed on each
+    assert out["placement"] == [[2, [1, 1]]], out
+    assert out["finished"] == [False, True] and out["part_differs"]
+    # every leaf of the training state: actor/critics, Adam, lambda, normalisers, env states, RNG keys, counters
+    assert out["equal"], out
+    assert out["csv_equal"] and out["episodes"] > 0, out
+    assert out["iteration"] == [32, 32] and out["segments"] == 2
