@@ -42,8 +42,8 @@ def bench(scenario: str, algo: str, seeds: int, cycles: int, repeats: int, num_e
     keys = seed_keys(cfg)
     t0 = time.perf_counter()
     state = seed_parallel(trainer.init, seeds)(keys)  # the programs python -m train runs
-    chunk = seed_parallel(trainer.run_chunk, seeds, in_axes=(0, None), donate_argnums=0).lower(
-        state, jnp.int32(0)).compile()
+    chunk = seed_parallel(trainer.run_chunk, seeds, in_axes=(0, None), donate_argnums=0,
+                          sequential=trainer.seeds_in_sequence).lower(state, jnp.int32(0)).compile()
     compile_s = time.perf_counter() - t0
     state, m = chunk(state, jnp.int32(0))
     jax.block_until_ready(m)

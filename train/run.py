@@ -30,7 +30,7 @@ from jaxsmarl import metrics
 from jaxsmarl.checkpoints import Checkpointer
 from train.loop import make_train, seed_keys
 
-__all__ = ["run", "evaluate_checkpoint", "use_all_cpu_cores", "seed_sharding", "seed_parallel"]
+__all__ = ["run", "evaluate_checkpoint", "use_all_cpu_cores", "seed_sharding", "seed_parallel", "seed_loop"]
 
 
 # XLA:CPU flags for the training programs. YNNPACK's "reduce" fusions run the reductions over the batch axis of
@@ -78,7 +78,26 @@ def seed_sharding(num_seeds: int):
     return NamedSharding(Mesh(np.array(devices[:n]), ("seeds",)), PartitionSpec("seeds"))
 
 
-def seed_parallel(fn, num_seeds: int, in_axes=0, donate_argnums=()):
+def seed_loop(fn, in_axes=0):
+    """``jax.vmap(fn, in_axes)`` computed one seed after another (``lax.map``): the same values up to round-off,
+    each seed by the unbatched program (so, from two seeds up, a seed's result does not depend on the others).
+    ``in_axes``: 0 or None per argument."""
+    def run(*args):
+        axes = tuple(in_axes) if isinstance(in_axes, (tuple, list)) else (in_axes,) * len(args)
+        if len(axes) != len(args) or any(a not in (0, None) for a in axes):
+            raise ValueError(f"seed_loop: in_axes must be 0 or None per argument, got {in_axes!r}")
+        mapped = tuple(x for x, a in zip(args, axes) if a == 0)
+
+        def one(xs):
+            it = iter(xs)
+            return fn(*(next(it) if a == 0 else x for x, a in zip(args, axes)))
+
+        return jax.lax.map(one, mapped)
+
+    return run
+
+
+def seed_parallel(fn, num_seeds: int, in_axes=0, donate_argnums=(), sequential: bool = False):
     """``jit(vmap(fn, in_axes))`` over ``num_seeds`` seeds, the seeds split over the devices of
     :func:`seed_sharding`: each device runs its own seeds as an independent program (``shard_map``), and every
     output is sharded along the seed axis.
@@ -87,9 +106,14 @@ def seed_parallel(fn, num_seeds: int, in_axes=0, donate_argnums=()):
     lock-step, e.g. a ``while_loop`` whose trip count depends on the seed (the envs' ``sparse_map``) gets an
     all-reduce over devices in its condition at every trip; seeds are independent, so nothing should cross
     devices (and an XLA:CPU collective parks a thread of the 2-thread intra-op pool while it waits).
+
+    ``sequential``: a device runs its seeds one after another (:func:`seed_loop`) instead of batched. The
+    MAPPO-L / MACPO training chunks take 14-18% less CPU time per env step so on XLA:CPU (8 seeds on 2 devices):
+    the batched update runs slower than the same work seed by seed (advantage preparation ~2x, the minibatch
+    steps ~15%); the rollout costs the same either way.
     """
     sharding = seed_sharding(num_seeds)
-    vfn = jax.vmap(fn, in_axes=in_axes)
+    vfn = seed_loop(fn, in_axes) if sequential else jax.vmap(fn, in_axes=in_axes)
     if sharding is None:
         return jax.jit(vfn, donate_argnums=donate_argnums)
     seeds, rep = PartitionSpec("seeds"), PartitionSpec()
@@ -125,8 +149,10 @@ def _program(config: dict, env=None) -> dict:
     prog = {
         "trainer": trainer, "sharding": seed_sharding(S), "compiled": {},
         "init": seed_parallel(trainer.init, S),
-        "chunk": seed_parallel(trainer.run_chunk, S, in_axes=(0, None), donate_argnums=0),
-        "tail": (seed_parallel(trainer.run_tail, S, in_axes=(0, None), donate_argnums=0)
+        "chunk": seed_parallel(trainer.run_chunk, S, in_axes=(0, None), donate_argnums=0,
+                               sequential=trainer.seeds_in_sequence),
+        "tail": (seed_parallel(trainer.run_tail, S, in_axes=(0, None), donate_argnums=0,
+                               sequential=trainer.seeds_in_sequence)
                  if trainer.run_tail is not None else None),
         "evaluate": seed_parallel(trainer.evaluate, S),
     }
