@@ -109,4 +109,6 @@ def make_onpolicy_train(config: dict, env, agent) -> Trainer:
     evaluate = make_evaluate(wrapped, params, agent.greedy_act, config["eval_episodes"], config["eval_max_steps"])
     return Trainer(config=config, env=env, agent=agent, init=init, run_chunk=run_chunk, run_tail=run_tail,
                    train=train, evaluate=evaluate, total_iters=total_iters, chunk_iters=chunk_iters,
-                   n_chunks=n_full + (1 if tail else 0), seeds_in_sequence=True)
+                   n_chunks=n_full + (1 if tail else 0),
+                   # seed by seed is ~15% cheaper on XLA:CPU; an accelerator wants the seeds batched
+                   seeds_in_sequence=jax.default_backend() == "cpu")
