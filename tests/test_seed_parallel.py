@@ -119,6 +119,9 @@ def test_onpolicy_chunks_run_seeds_in_sequence():
     import train.run as run
     from train.config import load_config
 
+    if jax.default_backend() != "cpu":
+        pytest.skip("seeds run one after another only on the CPU backend (train/onpolicy.py)")
+
     over = dict(total_steps=128, num_envs=8, rollout_length=8, num_minibatches=2, ppo_epochs=2, chunk_steps=128,
                 checkpoint_every=0, eval_episodes=0)
     final = {}
