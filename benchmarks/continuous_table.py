@@ -5,7 +5,7 @@
 For every ``<scenario>_<algo>[_suffix]/summary.json`` of intersection and racetrack it prints one row: the last 10%
 of each seed's training episodes and the greedy evaluation, as mean [95% bootstrap interval] across seeds (the
 intervals ``python -m train`` wrote into summary.json), next to the authors' recorded runs (mean +- population std
-over their seeds as in original_code.md §10.4, ``train.reference_results.AUTHORS``). The README's comparison table
+over their seeds as in original_code.md §10.4, ``train.reference_results.authors_summary``). The README's comparison table
 is this script's output.
 """
 
@@ -16,12 +16,10 @@ import json
 import os
 import sys
 
-import numpy as np
-
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
 
-from train.reference_results import AUTHORS  # noqa: E402
+from train.reference_results import authors_summary  # noqa: E402
 
 ORDER = ["cs-maddpg", "s-maddpg", "c-maddpg", "maddpg", "mappo-l", "macpo"]
 SCENARIOS = ["intersection", "racetrack"]
@@ -33,15 +31,11 @@ def _ci(entry, digits: int = 1) -> str:
 
 
 def _authors(scenario: str, algo: str, field: str, digits: int) -> str:
-    rec = AUTHORS.get((scenario, algo), {})
-    vals = [v for v in rec.get(field, []) if v is not None]
-    if not vals:
+    summary = authors_summary(scenario, algo, field)
+    if summary is None:
         return "n/r"
-    return f"{np.mean(vals):.{digits}f} ± {np.std(vals):.{digits}f}" if len(vals) > 1 else f"{vals[0]:.{digits}f}"
-
-
-def _steps(n: int) -> str:
-    return f"{n:,}"
+    mean, std, n = summary
+    return f"{mean:.{digits}f} ± {std:.{digits}f}" if n > 1 else f"{mean:.{digits}f}"
 
 
 def rows(results_dir: str) -> list[tuple[str, str, str, dict]]:
@@ -73,7 +67,7 @@ def table(results_dir: str) -> str:
         greedy = _ci(e["total_return"]["mean_ci"]) if "total_return" in e else "-"
         greedy_crash = f"{e['crash']['mean_ci'][0]:.2f}" if "crash" in e else "-"
         lines.append(
-            f"| {scenario} | {algo} ({folder}) | {cfg['num_seeds']} x {_steps(cfg['total_steps'])} | "
+            f"| {scenario} | {algo} ({folder}) | {cfg['num_seeds']} x {cfg['total_steps']:,} | "
             f"{_ci(last('total_return'))} | {last('leader_return')[0]:.1f} / {last('follower_return')[0]:.1f} | "
             f"{last('leader_cost')[0]:.2f} / {last('follower_cost')[0]:.2f} | {_ci(last('crash'), 2)} | {extra} | "
             f"{greedy} | {greedy_crash} | {_authors(scenario, algo, 'total_return', 1)} | "
