@@ -62,6 +62,15 @@ class Checkpointer:
         out = self._manager.restore(int(step), args=args)
         return out["state"], dict(out["meta"])
 
+    def meta(self, step: int | None = None) -> dict:
+        """Only the metadata saved at ``step`` (None: the latest), without reading the state."""
+        if step is None:
+            step = self.latest_step()
+            if step is None:
+                raise FileNotFoundError(f"no checkpoint in {self.directory}")
+        out = self._manager.restore(int(step), args=ocp.args.Composite(meta=ocp.args.JsonRestore()))
+        return dict(out["meta"])
+
     def close(self) -> None:
         self._manager.close()
 

@@ -162,3 +162,55 @@ def test_onpolicy_resume_on_two_devices_is_bit_identical(tmp_path):
     assert out["equal"], out
     assert out["csv_equal"] and out["episodes"] > 0, out
     assert out["iteration"] == [32, 32] and out["segments"] == 2
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Training a run further: --resume with a larger --steps continues exactly the run the larger budget would have
+# made, and refuses where it could not (fewer steps than saved, a partial last chunk, a replay buffer that would
+# change size).
+
+
+def test_onpolicy_run_trained_further_equals_the_longer_run(tmp_path):
+    from train.__main__ import main
+
+    cfg = load_config("intersection", "mappo-l", dict(
+        total_steps=256, num_seeds=2, num_envs=8, rollout_length=8, num_minibatches=2, ppo_epochs=2,
+        chunk_steps=64, checkpoint_every=64, eval_episodes=0))
+    straight = run(cfg, str(tmp_path / "a"), verbose=False)
+    short = run(dict(cfg, total_steps=128), str(tmp_path / "b"), verbose=False)
+    assert short["summary"]["finished"] and not _leaves_equal(short["state"].agent, straight["state"].agent)
+    out = str(tmp_path / "b")
+    with pytest.raises(ValueError, match="already has 128 env steps"):
+        run(dict(cfg, total_steps=64), out, resume=True, verbose=False)
+    # through the command line: the saved configuration with only the budget changed
+    assert main(["--out", out, "--resume", "--steps", "256", "--quiet"]) == 0
+    with open(os.path.join(out, "config.json")) as f:
+        assert json.load(f) == cfg
+    with open(tmp_path / "a" / "episodes.csv") as fa, open(tmp_path / "b" / "episodes.csv") as fb:
+        assert fa.read() == fb.read()
+    with Checkpointer(tmp_path / "b" / "checkpoints") as ck:
+        assert ck.latest_step() == 256 and ck.meta()["segments"] == 2
+        resumed, _ = ck.restore(None, straight["state"])
+    assert _leaves_equal(straight["state"], resumed)
+
+
+def test_training_further_is_refused_where_it_would_not_be_exact(tmp_path, small_config):
+    # merge CSQ: 800 steps in chunks of 200; the default buffer (500000) holds min(buffer_size, total_steps)
+    out = str(tmp_path / "c")
+    run(dict(small_config, total_steps=400), out, verbose=False)
+    with pytest.raises(ValueError, match="change shape"):
+        run(small_config, out, resume=True, verbose=False)
+    with open(os.path.join(out, "config.json")) as f:
+        assert json.load(f)["total_steps"] == 400  # a refused resume leaves the saved run as it was
+    out = str(tmp_path / "d")  # 300 steps: one chunk of 200 and a partial one of 100
+    run(dict(small_config, total_steps=300, buffer_size=200), out, verbose=False)
+    with pytest.raises(ValueError, match="partial chunk"):
+        run(dict(small_config, buffer_size=200), out, resume=True, verbose=False)
+    # with a buffer that is already full at the saved budget, an off-policy run can be trained further exactly
+    cfg = dict(small_config, buffer_size=200)
+    straight = run(cfg, str(tmp_path / "e"), verbose=False)
+    run(dict(cfg, total_steps=400), str(tmp_path / "f"), verbose=False)
+    resumed = run(cfg, str(tmp_path / "f"), resume=True, verbose=False)
+    assert resumed["summary"]["finished"] and _leaves_equal(straight["state"], resumed["state"])
+    with open(tmp_path / "e" / "episodes.csv") as fa, open(tmp_path / "f" / "episodes.csv") as fb:
+        assert fa.read() == fb.read()

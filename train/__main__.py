@@ -36,6 +36,8 @@ examples:
   python -m train                                       # merge, CSQ, 8 seeds, the authors' 20k steps
   python -m train --scenario roundabout --algo sq --seeds 4 --steps 5000
   python -m train --out runs/m --resume                 # continue an interrupted run (bit-identical)
+  python -m train --out runs/racetrack_macpo --resume --steps 4194304   # train a finished run further,
+                                                        # exactly as a 4194304-step run would have
   python -m train --eval-only runs/m --eval-episodes 20  # greedy evaluation of a saved run
   python -m train --set leader_rule=authors --set infeasible=argmax   # the authors' action rule
 
@@ -66,7 +68,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--checkpoint-every", type=int, default=None,
                    help="environment steps between checkpoints, a multiple of --chunk-steps (default 5000)")
     p.add_argument("--resume", action="store_true",
-                   help="continue the run in --out from its newest checkpoint (same configuration)")
+                   help="continue the run in --out from its newest checkpoint (same configuration; with a larger "
+                        "--steps, train a finished run further exactly as a longer run would have)")
     p.add_argument("--overwrite", action="store_true", help="delete an existing run in --out and start over")
     p.add_argument("--eval-episodes", type=int, default=None,
                    help="greedy evaluation episodes per seed after training (default 10; 0 skips)")

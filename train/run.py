@@ -183,11 +183,40 @@ def _check_out_dir(out: str, resume: bool, overwrite: bool) -> None:
 
 
 def _same_config(saved: dict, cfg: dict) -> None:
-    ignore = ("checkpoint_every", "eval_episodes", "eval_max_steps")  # do not change the training trajectory
+    # these do not change the training trajectory; total_steps is checked by _check_new_budget
+    ignore = ("checkpoint_every", "eval_episodes", "eval_max_steps", "total_steps")
     diff = {k: (saved.get(k), cfg[k]) for k in cfg if k not in ignore and saved.get(k) != cfg[k]}
     if diff:
         raise ValueError(f"--resume with a different configuration than the saved run: {diff}; resume with the "
-                         "same options (the saved config.json is used when none are given) or start a new --out")
+                         "same options (the saved config.json is used when none are given; only --steps, "
+                         "--checkpoint-every and --eval-episodes may change) or start a new --out")
+
+
+def _check_new_budget(saved: dict, config: dict, meta: dict, trainer, env) -> None:
+    """Resuming with another ``total_steps`` (e.g. training a finished run further) continues exactly the run a
+    fresh one with the new budget would have made, provided the new budget is not below the checkpoint, every
+    chunk done so far was a whole one (so chunk ``c`` still starts at ``c * chunk_steps``), and the training state
+    has the same shapes (an off-policy buffer holds ``min(buffer_size, total_steps)`` transitions). Nothing else
+    in the training programs depends on the budget."""
+    done = int(meta["env_steps"])
+    if config["total_steps"] < done:
+        raise ValueError(f"--resume --steps {config['total_steps']}: the run already has {done} env steps per seed "
+                         f"in its newest checkpoint; give at least that many")
+    E = config["num_envs"]
+    if done != int(meta["chunks_done"]) * trainer.chunk_iters * E:
+        raise ValueError(f"--resume --steps {config['total_steps']}: the saved run ended on a partial chunk "
+                         f"({done} env steps is not a multiple of chunk_steps={config['chunk_steps']}), so a longer "
+                         f"run would not continue it exactly; start a new --out")
+    key = jax.random.PRNGKey(0)
+    old_shapes = jax.eval_shape(_program(saved, env)["trainer"].init, key)
+    new_shapes = jax.eval_shape(trainer.init, key)
+    if jax.tree.structure(old_shapes) != jax.tree.structure(new_shapes) or any(
+            (a.shape, a.dtype) != (b.shape, b.dtype)
+            for a, b in zip(jax.tree.leaves(old_shapes), jax.tree.leaves(new_shapes))):
+        raise ValueError(f"--resume --steps {config['total_steps']}: the training state would change shape (a replay "
+                         f"buffer holds min(buffer_size, total_steps) = min({saved.get('buffer_size')}, "
+                         f"{saved['total_steps']}) transitions in the saved run); start a new --out with the longer "
+                         f"budget, or set buffer_size to at most {saved['total_steps']} there")
 
 
 def run(config: dict, out: str, *, resume: bool = False, overwrite: bool = False, env=None, verbose: bool = True,
@@ -204,10 +233,11 @@ def run(config: dict, out: str, *, resume: bool = False, overwrite: bool = False
         shutil.rmtree(out)
     os.makedirs(out, exist_ok=True)
     cfg_path = os.path.join(out, "config.json")
+    saved_cfg = None
     if resume:
         with open(cfg_path) as f:
-            _same_config(json.load(f), config)
-    metrics.write_json(cfg_path, config)
+            saved_cfg = json.load(f)
+        _same_config(saved_cfg, config)
 
     name = f"{config['scenario']}/{config['algo']} x{config['num_seeds']}"
     S, E = config["num_seeds"], config["num_envs"]
@@ -222,6 +252,13 @@ def run(config: dict, out: str, *, resume: bool = False, overwrite: bool = False
     log = metrics.EpisodeLog(S)
     prev = {"train_s_total": 0.0, "compile_s_total": 0.0, "segments": 0}  # earlier segments of a resumed run
     if resume:
+        meta = ckpt.meta() if saved_cfg.get("total_steps") != config["total_steps"] else None
+        if meta is not None:
+            try:
+                _check_new_budget(saved_cfg, config, meta, trainer, env)
+            except ValueError:
+                ckpt.close()
+                raise
         state, meta = ckpt.restore(None, state)
         done_chunks = int(meta["chunks_done"])
         prev = {k: meta.get(k, v) for k, v in prev.items()}
@@ -230,6 +267,7 @@ def run(config: dict, out: str, *, resume: bool = False, overwrite: bool = False
         log.truncate(int(meta["env_steps"]))  # episodes logged after the checkpoint are replayed
         if verbose:
             _print(f"{name}: resumed from {out}/checkpoints at {meta['env_steps']} env steps", False)
+    metrics.write_json(cfg_path, config)  # after the resume checks: a refused resume leaves the saved run as it was
     state = jax.device_put(state, sharding)
     jax.block_until_ready(state)
 
