@@ -105,7 +105,22 @@ def test_resume_and_overwrite_guards(tmp_path, small_config):
     with pytest.raises(ValueError, match="different configuration"):
         run(dict(cfg, lr=1e-4), out, resume=True, verbose=False)
     with open(os.path.join(out, "config.json")) as f:
-        assert json.load(f)["lr"] == cfg["lr"]
+        saved = json.load(f)
+    assert saved["lr"] == cfg["lr"]
+    # a run saved before a configuration key existed resumes when the key keeps its default ...
+    from train.config import defaults_for
+
+    key = next(k for k, v in cfg.items() if k in defaults_for("csq") and v == defaults_for("csq")[k]
+               and k not in ("algo", "scenario", "total_steps"))
+    with open(os.path.join(out, "config.json"), "w") as f:
+        json.dump({k: v for k, v in saved.items() if k != key}, f)
+    assert run(cfg, out, resume=True, verbose=False, max_chunks=1)["summary"]["timing"]["segments"] == 2
+    # ... and not when this run sets it otherwise
+    assert cfg["batch_size"] != defaults_for("csq")["batch_size"]
+    with open(os.path.join(out, "config.json"), "w") as f:
+        json.dump({k: v for k, v in saved.items() if k != "batch_size"}, f)
+    with pytest.raises(ValueError, match="different configuration"):
+        run(cfg, out, resume=True, verbose=False)
 
 
 # ---------------------------------------------------------------------------------------------------------

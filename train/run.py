@@ -29,6 +29,7 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from jaxsmarl import metrics
 from jaxsmarl.checkpoints import Checkpointer
 from train.loop import make_train, seed_keys
+from train.config import defaults_for
 
 __all__ = ["run", "evaluate_checkpoint", "use_all_cpu_cores", "seed_sharding", "seed_parallel", "seed_loop"]
 
@@ -183,6 +184,8 @@ def _check_out_dir(out: str, resume: bool, overwrite: bool) -> None:
 
 
 def _same_config(saved: dict, cfg: dict) -> None:
+    # a key the saved run lacks was added to the library later, with a default that keeps the earlier behaviour
+    saved = {**defaults_for(cfg["algo"]), **saved}
     # these do not change the training trajectory; total_steps is checked by _check_new_budget
     ignore = ("checkpoint_every", "eval_episodes", "eval_max_steps", "total_steps")
     diff = {k: (saved.get(k), cfg[k]) for k in cfg if k not in ignore and saved.get(k) != cfg[k]}
