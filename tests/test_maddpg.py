@@ -162,6 +162,49 @@ def test_soft_update_period_and_multiplier_in_update():
     assert int(prev.n_updates) == 4
 
 
+def test_sequential_actor_order_steps_the_follower_against_the_stepped_leader(x64):
+    """actor_order="sequential" (authors' leader.train() then follower.train()): the leader's step and every critic
+    step are those of the simultaneous update; the follower's actor takes one Adam step on its p25 loss with
+    a1 = mu1(o1) of the STEPPED leader, and its multiplier uses G2 there (reference built here from the modules)."""
+    import optax
+
+    kw = dict(lr_actor=0.05, lr_lambda=0.5)
+    sim, seq = _agent(**kw), _agent(actor_order="sequential", **kw)
+    st = jax.tree.map(lambda x: x.astype(jnp.float64) if x.dtype == jnp.float32 else x, sim.init(jax.random.PRNGKey(5)))
+    st = st.replace(lam=jnp.array([0.4, 0.9]))
+    ex = sim.transition_example()
+    batch = jax.tree.map(lambda x: jax.random.normal(jax.random.PRNGKey(6), (7,) + x.shape).astype(
+        jnp.float64) if x.dtype != bool else jnp.zeros((7,) + x.shape, bool), ex)
+    new_sim, _ = sim.update(st, batch, jax.random.PRNGKey(0))
+    new_seq, info = seq.update(st, batch, jax.random.PRNGKey(0))
+    flat = lambda t: np.asarray(ravel_pytree(t)[0])
+    np.testing.assert_array_equal(flat(new_seq.actors[0]), flat(new_sim.actors[0]))
+    np.testing.assert_array_equal(flat(new_seq.critics), flat(new_sim.critics))
+    assert float(new_seq.lam[0]) == float(new_sim.lam[0])
+
+    obs, d2 = batch.obs, sim.config.cost_threshold[1]
+    a1_new = sim.actor.apply(new_sim.actors[0], obs[:, 0])
+
+    def follower_values(theta2):
+        a2 = sim.actor.apply(theta2, jnp.concatenate([obs[:, 1], a1_new], -1))
+        return (_critic_ref(sim, st.critics, 1, 0, obs, a1_new, a2), _critic_ref(sim, st.critics, 1, 1, obs, a1_new, a2))
+
+    def follower_loss(theta2):
+        q, g = follower_values(theta2)
+        return jnp.mean(-q + st.lam[1] * (g - d2))
+
+    theta2 = st.actors[1]
+    adam = optax.adam(kw["lr_actor"])
+    step, _ = adam.update(jax.grad(follower_loss)(theta2), adam.init(theta2), theta2)
+    np.testing.assert_allclose(flat(new_seq.actors[1]), flat(optax.apply_updates(theta2, step)), rtol=1e-9, atol=1e-12)
+    g2 = float(jnp.mean(follower_values(theta2)[1]))
+    np.testing.assert_allclose(float(new_seq.lam[1]), np.clip(0.9 + 0.5 * (g2 - d2), 0, 100), rtol=1e-9)
+    np.testing.assert_allclose(float(info["g_actor"][1]), g2, rtol=1e-9)
+    assert float(info["actor_loss"][1]) == pytest.approx(float(follower_loss(theta2)), rel=1e-9)
+    # and it is a different update from the simultaneous one
+    assert not np.allclose(flat(new_seq.actors[1]), flat(new_sim.actors[1]), rtol=1e-6, atol=1e-9)
+
+
 def test_exploration_schedule_and_greedy_limit():
     agent = MADDPGAgent(MADDPGConfig(noise_min=(0.0, 0.05), eps_min=(0.02, 0.0)))
     ex = agent.exploration(jnp.int32(150000))

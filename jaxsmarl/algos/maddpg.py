@@ -25,8 +25,9 @@ Two agents, deterministic actors bounded by ``max_action * tanh``:
   authors' periodic soft target update of all networks (``tau`` every ``target_update_every`` updates).
 
 Differences to the authors' code, as options: ``lambda_rule="authors"`` (non-decreasing lambda and hinge
-penalty), ``critic_input="own"``, ``bootstrap_on_truncation=False``. Their follower step sees the leader actor
-after its step (sequential updates); here both actors step from the same parameters.
+penalty), ``critic_input="own"``, ``bootstrap_on_truncation=False``, ``actor_order="sequential"`` (their
+``leader.train()`` runs before ``follower.train()``, so the follower's actor loss and multiplier see the leader
+actor after its step; by default both actors step from the same parameters, as Algorithm 2 reads).
 """
 
 from __future__ import annotations
@@ -79,6 +80,7 @@ class MADDPGConfig:
     eps_min: tuple[float, ...] = (0.0, 0.0)
     explore_decay: float = 5e-7  # per environment step, both schedules
     bootstrap_on_truncation: bool = True
+    actor_order: str = "simultaneous"  # or "sequential": the follower's actor step sees the stepped leader actor
 
     def __post_init__(self):
         if self.critic_input not in ("joint", "own"):
@@ -300,6 +302,18 @@ class MADDPGAgent:
         critics = optax.apply_updates(state.critics, upd)
         upd, actor_opt = self.actor_opt.update(g_act, state.actor_opt, state.actors)
         actors = optax.apply_updates(state.actors, upd)
+        if c.actor_order == "sequential":
+            # the authors' leader.train() before follower.train(): the follower's actor loss (and its multiplier)
+            # at a1 = mu1(o1) of the STEPPED leader actor. Adam is elementwise, so the leader's step stands.
+            def follower_loss(theta2):
+                loss, v_new = self.actor_losses((actors[LEADER], theta2), state.critics, state.lam, batch.obs)
+                return loss[FOLLOWER], (loss, v_new)
+
+            g2, (loss_new, v_new) = jax.grad(follower_loss, has_aux=True)(state.actors[FOLLOWER])
+            upd, actor_opt = self.actor_opt.update((g_act[LEADER], g2), state.actor_opt, state.actors)
+            actors = optax.apply_updates(state.actors, upd)
+            v = v.at[:, FOLLOWER].set(v_new[:, FOLLOWER])
+            actor_loss = actor_loss.at[FOLLOWER].set(loss_new[FOLLOWER])
         lam = self.lagrangian.update(state.lam, v[..., G]) if c.constrained else state.lam
 
         n = state.n_updates  # the authors soft-update when train_step > 0 and train_step % update_rate == 0

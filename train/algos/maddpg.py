@@ -35,6 +35,7 @@ _COMMON_DEFAULTS = {
     "init": "torch",
     "critic_input": "joint",
     "bootstrap_on_truncation": True,
+    "actor_order": "simultaneous",
 }
 
 _CONSTRAINED_DEFAULTS = {
@@ -70,6 +71,9 @@ HELP = {
                     "the agent's own observation)",
     "bootstrap_on_truncation": "true: only an agent's own termination stops bootstrapping (paper); false: the time "
                                "limit does too (authors)",
+    "actor_order": "simultaneous: both actors step from the same parameters (Algorithm 2) | sequential: the "
+                   "leader steps first and the follower's actor loss and multiplier see the stepped leader actor "
+                   "(the authors' leader.train() then follower.train())",
     "cost_threshold": "per-agent cost limits [d_leader, d_follower] on the cost critics (a single number sets both)",
     "lambda_rule": "Lagrange multiplier rule: dual (paper p22: lambda += lr (G - d), projected to [0, lambda_max], "
                    "penalty lambda (G - d)) | authors (lambda += lr relu(G - d), never decreases, hinge penalty)",
@@ -87,6 +91,7 @@ RULES = {
     "tau": Num(0.0, 1.0, lo_open=True), "noise_start": _NOISE, "noise_min": _NOISE, "eps_start": _PROB,
     "eps_min": _PROB, "explore_decay": Num(0.0, 1.0), "hidden_sizes": Sizes(), "init": Choice(("torch", "lecun")),
     "critic_input": Choice(("joint", "own")), "bootstrap_on_truncation": Bool(),
+    "actor_order": Choice(("simultaneous", "sequential")),
 }
 CONSTRAINED_RULES = {
     **RULES, "cost_threshold": PerAgent(Num(hint="the cost critics estimate discounted episode costs")),
@@ -132,7 +137,8 @@ def make_agent(config: dict, env):
         lr_critic=config["lr_critic"], gamma=config["gamma"], tau=config["tau"],
         target_update_every=config["target_update_every"], noise_start=tuple(config["noise_start"]),
         noise_min=tuple(config["noise_min"]), eps_start=tuple(config["eps_start"]), eps_min=tuple(config["eps_min"]),
-        explore_decay=config["explore_decay"], bootstrap_on_truncation=config["bootstrap_on_truncation"], **extra,
+        explore_decay=config["explore_decay"], bootstrap_on_truncation=config["bootstrap_on_truncation"],
+        actor_order=config["actor_order"], **extra,
     ))
 
 
