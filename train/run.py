@@ -211,7 +211,7 @@ def _check_new_budget(saved: dict, config: dict, meta: dict, trainer, env) -> No
                          f"({done} env steps is not a multiple of chunk_steps={config['chunk_steps']}), so a longer "
                          f"run would not continue it exactly; start a new --out")
     key = jax.random.PRNGKey(0)
-    old_shapes = jax.eval_shape(_program(saved, env)["trainer"].init, key)
+    old_shapes = jax.eval_shape(_program({**defaults_for(config["algo"]), **saved}, env)["trainer"].init, key)
     new_shapes = jax.eval_shape(trainer.init, key)
     if jax.tree.structure(old_shapes) != jax.tree.structure(new_shapes) or any(
             (a.shape, a.dtype) != (b.shape, b.dtype)
