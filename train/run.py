@@ -184,8 +184,6 @@ def _check_out_dir(out: str, resume: bool, overwrite: bool) -> None:
 
 
 def _same_config(saved: dict, cfg: dict) -> None:
-    # a key the saved run lacks was added to the library later, with a default that keeps the earlier behaviour
-    saved = {**defaults_for(cfg["algo"]), **saved}
     # these do not change the training trajectory; total_steps is checked by _check_new_budget
     ignore = ("checkpoint_every", "eval_episodes", "eval_max_steps", "total_steps")
     diff = {k: (saved.get(k), cfg[k]) for k in cfg if k not in ignore and saved.get(k) != cfg[k]}
@@ -211,7 +209,7 @@ def _check_new_budget(saved: dict, config: dict, meta: dict, trainer, env) -> No
                          f"({done} env steps is not a multiple of chunk_steps={config['chunk_steps']}), so a longer "
                          f"run would not continue it exactly; start a new --out")
     key = jax.random.PRNGKey(0)
-    old_shapes = jax.eval_shape(_program({**defaults_for(config["algo"]), **saved}, env)["trainer"].init, key)
+    old_shapes = jax.eval_shape(_program(saved, env)["trainer"].init, key)
     new_shapes = jax.eval_shape(trainer.init, key)
     if jax.tree.structure(old_shapes) != jax.tree.structure(new_shapes) or any(
             (a.shape, a.dtype) != (b.shape, b.dtype)
@@ -236,10 +234,10 @@ def run(config: dict, out: str, *, resume: bool = False, overwrite: bool = False
         shutil.rmtree(out)
     os.makedirs(out, exist_ok=True)
     cfg_path = os.path.join(out, "config.json")
-    saved_cfg = None
     if resume:
         with open(cfg_path) as f:
-            saved_cfg = json.load(f)
+            # a key the saved run lacks was added to the library later, with a default that keeps the old behaviour
+            saved_cfg = {**defaults_for(config["algo"]), **json.load(f)}
         _same_config(saved_cfg, config)
 
     name = f"{config['scenario']}/{config['algo']} x{config['num_seeds']}"
@@ -255,10 +253,9 @@ def run(config: dict, out: str, *, resume: bool = False, overwrite: bool = False
     log = metrics.EpisodeLog(S)
     prev = {"train_s_total": 0.0, "compile_s_total": 0.0, "segments": 0}  # earlier segments of a resumed run
     if resume:
-        meta = ckpt.meta() if saved_cfg.get("total_steps") != config["total_steps"] else None
-        if meta is not None:
+        if saved_cfg["total_steps"] != config["total_steps"]:
             try:
-                _check_new_budget(saved_cfg, config, meta, trainer, env)
+                _check_new_budget(saved_cfg, config, ckpt.meta(), trainer, env)
             except ValueError:
                 ckpt.close()
                 raise
