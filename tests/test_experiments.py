@@ -30,6 +30,10 @@ def test_study_end_to_end_resume_and_keep(tmp_path):
     assert st["status"] == "trained (interrupted)"
     csq_dir = os.path.join(out, "runs", "merge_csq")
     assert _read(os.path.join(csq_dir, "summary.json"))["finished"] is False
+    # saved before a configuration key existed (leader_rule, at its default): still the same run, resumed below
+    saved = _read(os.path.join(csq_dir, "config.json"))
+    with open(os.path.join(csq_dir, "config.json"), "w") as f:
+        json.dump({k: v for k, v in saved.items() if k != "leader_rule"}, f)
 
     # 2. the study resumes it from its checkpoint and trains SQ
     study = experiments.run_study(out, only=["merge"], budgets=BUDGETS, verbose=False)

@@ -143,6 +143,27 @@ def test_cli_run_writes_metrics_and_evaluates(tmp_path, capsys):
     assert ev["env_steps"] == 400
     np.testing.assert_allclose(ev["total_return"]["per_seed"], summary["eval"]["total_return"]["per_seed"])
 
+    # A run saved before a configuration key existed (here: leader_rule, at its default) still evaluates, renders
+    # and resumes: the key counts as its default, which keeps the behaviour the run was trained with.
+    from train.config import read_run_config
+    from train.render import load_checkpoint_policy
+
+    cfg_path = os.path.join(out, "config.json")
+    saved = json.load(open(cfg_path))
+    assert saved["leader_rule"] == "stackelberg"
+    with open(cfg_path, "w") as f:
+        json.dump({k: v for k, v in saved.items() if k != "leader_rule"}, f)
+    assert read_run_config(out) == saved
+    assert cli.main(["--eval-only", out, "--eval-episodes", "2"]) == 0
+    np.testing.assert_allclose(json.loads(capsys.readouterr().out)["total_return"]["per_seed"],
+                               summary["eval"]["total_return"]["per_seed"])
+    assert load_checkpoint_policy(out, seed=1)[3]["leader_rule"] == "stackelberg"
+    assert cli.main(["--out", out, "--resume", "--quiet"]) == 0  # finished: nothing to train, evaluated again
+    again = json.load(open(os.path.join(out, "summary.json")))
+    assert again["finished"] and again["timing"]["env_steps_run"] == 400
+    with pytest.raises(ValueError, match="no config.json"):
+        read_run_config(str(tmp_path))
+
 
 def test_pure_train_matches_chunked_driver(tmp_path):
     """``jit(vmap(make_train(cfg).train))(keys)`` is the same computation as the host-chunked run."""

@@ -11,7 +11,7 @@ import json
 import os
 import sys
 
-from train.config import ALGOS, COMMON, COMMON_HELP, SCENARIOS, load_config
+from train.config import ALGOS, COMMON, COMMON_HELP, SCENARIOS, load_config, read_run_config
 
 
 def _keys_help() -> str:
@@ -103,10 +103,9 @@ def build_config(args: argparse.Namespace) -> dict:
         if v is not None:
             overrides[key] = v
     if args.resume and args.out:
-        saved = os.path.join(args.out, "config.json")
-        if os.path.exists(saved):  # continue with the saved configuration; explicit options must agree
-            with open(saved) as f:
-                base = json.load(f)
+        if os.path.exists(os.path.join(args.out, "config.json")):
+            # continue with the saved configuration; explicit options must agree
+            base = read_run_config(args.out)
             base.update(overrides)
             return load_config(args.scenario or base["scenario"], args.algo or base["algo"], base)
     return load_config(args.scenario, args.algo, overrides, config_file=args.config)

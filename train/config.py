@@ -21,7 +21,7 @@ import os
 from typing import Any, Callable
 
 __all__ = ["COMMON", "COMMON_HELP", "AlgoSpec", "ALGOS", "SCENARIOS", "CONFIG_DIR", "DEFAULTS", "HELP",
-           "register", "spec", "defaults_for", "help_for", "load_config", "validate", "config_path",
+           "register", "spec", "defaults_for", "help_for", "load_config", "read_run_config", "validate", "config_path",
            "Int", "Num", "Choice", "Bool", "PerAgent", "Sizes"]
 
 CONFIG_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), "configs")
@@ -241,6 +241,19 @@ def load_json(path: str) -> dict:
         raise ValueError(f"config file {path} must hold a JSON object of key: value pairs")
     data.pop("_comment", None)
     return data
+
+
+def read_run_config(run_dir: str) -> dict:
+    """The configuration saved in run folder ``run_dir`` (``config.json``), with every key added to the library
+    after the run was saved filled with its default. A new key's default keeps the behaviour the run was trained
+    with, so old runs resume, evaluate and render as they were."""
+    path = os.path.join(run_dir, "config.json")
+    if not os.path.isfile(path):
+        raise ValueError(f"{run_dir} is not a run folder: it has no config.json (written by python -m train)")
+    saved = load_json(path)
+    if saved.get("algo") not in ALGOS:
+        raise ValueError(f"{path}: 'algo' is {saved.get('algo')!r}; a run's algorithm is one of {', '.join(ALGOS)}")
+    return {**defaults_for(saved["algo"]), **saved}
 
 
 def load_config(scenario: str | None = None, algo: str | None = None, overrides: dict | None = None,

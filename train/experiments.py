@@ -144,6 +144,17 @@ def _read_json(path: str):
         return None
 
 
+def _saved_config(run_dir: str) -> dict | None:
+    """The run folder's configuration with later-added keys at their defaults (``train.config.read_run_config``);
+    None when there is no readable one."""
+    from train.config import read_run_config
+
+    try:
+        return read_run_config(run_dir)
+    except (OSError, ValueError):
+        return None
+
+
 def _same(saved: dict | None, config: dict) -> bool:
     if saved is None:
         return False
@@ -173,7 +184,7 @@ def run_one(item: dict, study_dir: str, overwrite: bool = False, gifs: bool = Tr
         return {"status": "skipped", "reason": reason}
     run_dir = os.path.join(study_dir, "runs", name)
     summary = _read_json(os.path.join(run_dir, "summary.json"))
-    saved = _read_json(os.path.join(run_dir, "config.json"))
+    saved = _saved_config(run_dir)
     t0 = time.perf_counter()
     status = {"config": config}
     if summary and summary.get("finished") and not overwrite:

@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import math
 import os
 import shutil
@@ -406,6 +405,7 @@ def load_checkpoint_policy(run_dir: str, seed: int = 0, step: int | None = None)
     ``step``) with :class:`jaxsmarl.checkpoints.Checkpointer`.
     """
     from jaxsmarl.checkpoints import Checkpointer
+    from train.config import read_run_config
     from train.loop import make_train, seed_keys
 
     cfg_path = os.path.join(run_dir, "config.json")
@@ -413,8 +413,7 @@ def load_checkpoint_policy(run_dir: str, seed: int = 0, step: int | None = None)
     if not os.path.isfile(cfg_path) or not os.path.isdir(ckpt_dir):
         raise ValueError(f"{run_dir} is not a run folder (needs config.json and checkpoints/, as written by "
                          "python -m train)")
-    with open(cfg_path) as f:
-        config = json.load(f)
+    config = read_run_config(run_dir)
     n = int(config["num_seeds"])
     if not 0 <= seed < n:
         raise ValueError(f"--seed must be a seed index of the run, 0..{n - 1}, got {seed}")

@@ -29,7 +29,7 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from jaxsmarl import metrics
 from jaxsmarl.checkpoints import Checkpointer
 from train.loop import make_train, seed_keys
-from train.config import defaults_for
+from train.config import read_run_config
 
 __all__ = ["run", "evaluate_checkpoint", "use_all_cpu_cores", "seed_sharding", "seed_parallel", "seed_loop"]
 
@@ -235,9 +235,7 @@ def run(config: dict, out: str, *, resume: bool = False, overwrite: bool = False
     os.makedirs(out, exist_ok=True)
     cfg_path = os.path.join(out, "config.json")
     if resume:
-        with open(cfg_path) as f:
-            # a key the saved run lacks was added to the library later, with a default that keeps the old behaviour
-            saved_cfg = {**defaults_for(config["algo"]), **json.load(f)}
+        saved_cfg = read_run_config(out)
         _same_config(saved_cfg, config)
 
     name = f"{config['scenario']}/{config['algo']} x{config['num_seeds']}"
@@ -374,8 +372,7 @@ def _write_eval_csv(path: str, rows: list[dict]) -> None:
 
 def evaluate_checkpoint(out: str, episodes: int | None = None, step: int | None = None, env=None) -> dict:
     """Greedy evaluation of the checkpoint in run folder ``out`` (newest, or ``step``)."""
-    with open(os.path.join(out, "config.json")) as f:
-        config = json.load(f)
+    config = read_run_config(out)
     if episodes is not None:
         config["eval_episodes"] = int(episodes)
     prog = _program(config, env)
