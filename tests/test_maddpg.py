@@ -2,6 +2,8 @@
 soft updates, exploration schedule, learning on a toy problem with a closed-form optimum, registry and CLI."""
 
 import dataclasses
+import os
+import sys
 
 import jax
 import jax.numpy as jnp
@@ -205,6 +207,21 @@ def test_sequential_actor_order_steps_the_follower_against_the_stepped_leader(x6
     assert not np.allclose(flat(new_seq.actors[1]), flat(new_sim.actors[1]), rtol=1e-6, atol=1e-9)
 
 
+@pytest.mark.parametrize("stackelberg", [True, False])
+def test_greedy_preactivations_are_the_actions_before_tanh(stackelberg):
+    agent = _agent(stackelberg=stackelberg, hidden_sizes=(5, 7), max_action=2.0)
+    st = agent.init(jax.random.PRNGKey(0))
+    obs = jax.random.normal(jax.random.PRNGKey(1), (6, 2, D))
+    z = agent.greedy_preactivations(st.actors, obs)
+    np.testing.assert_allclose(2.0 * np.tanh(z), agent.greedy_act(st, obs), atol=1e-6)
+    # a leader whose last layer is scaled up saturates: its pre-activation scales, its action sticks at the bound
+    big = jax.tree.map(lambda x: x, st.actors[0])
+    big["params"]["_Dense_2"] = jax.tree.map(lambda x: 1e3 * x, big["params"]["_Dense_2"])
+    z_big = agent.greedy_preactivations((big, st.actors[1]), obs)
+    np.testing.assert_allclose(z_big[:, 0], 1e3 * z[:, 0], rtol=1e-5)
+    assert np.all(np.abs(agent.greedy_act(st.replace(actors=(big, st.actors[1])), obs)[:, 0]) > 2.0 - 1e-3)
+
+
 def test_exploration_schedule_and_greedy_limit():
     agent = MADDPGAgent(MADDPGConfig(noise_min=(0.0, 0.05), eps_min=(0.02, 0.0)))
     ex = agent.exploration(jnp.int32(150000))
@@ -300,3 +317,30 @@ def test_short_training_run_end_to_end(tmp_path):
     assert np.all(np.isfinite(ravel_pytree(st.actors)[0]))
     assert res["summary"]["finished"] and "eval" in res["summary"]
     assert (tmp_path / "r" / "summary.json").exists()
+
+
+def test_actor_saturation_report_on_a_saved_run(tmp_path):
+    """benchmarks/actor_saturation.py on a tiny racetrack run: at the reset states the largest |greedy action| is
+    tanh of the largest |pre-activation| it reports, per seed and agent; its flag follows the threshold."""
+    from train.loop import make_train
+    from train.run import run
+
+    sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "benchmarks"))
+    from actor_saturation import saturation
+
+    cfg = load_config("racetrack", "s-maddpg", dict(num_seeds=2, total_steps=200, chunk_steps=100,
+                                                    checkpoint_every=100, eval_episodes=0, warmup=100,
+                                                    batch_size=16, hidden_sizes=[8]))
+    st = run(cfg, str(tmp_path / "r"), verbose=False)["state"].agent
+    rows = saturation(str(tmp_path / "r"), starts=3)
+    trainer = make_train(cfg)
+    obs, _ = jax.vmap(trainer.env.reset, in_axes=(0, None))(jax.random.split(jax.random.PRNGKey(0), 3),
+                                                            trainer.env.default_params)
+    assert len(rows) == 2
+    for s_, row in enumerate(rows):
+        actors = jax.tree.map(lambda x: x[s_], st.actors)
+        a = np.asarray(jax.vmap(trainer.agent.joint_action, in_axes=(None, 0))(actors, obs), np.float64)
+        np.testing.assert_allclose(np.tanh(row["max_abs"]), np.abs(a).max(axis=(0, 2)), atol=1e-6)
+        assert row["saturated"] == bool(max(row["max_abs"]) > 3.0) and row["env_steps"] == 200
+    with pytest.raises(ValueError, match="--starts"):
+        saturation(str(tmp_path / "r"), starts=0)

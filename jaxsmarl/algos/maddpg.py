@@ -202,6 +202,21 @@ class MADDPGAgent:
         a2 = self.follower_action(actors[FOLLOWER], obs[..., FOLLOWER, :], a1)
         return jnp.stack([a1, a2], axis=-2)
 
+    def greedy_preactivations(self, actors, obs: jax.Array) -> jax.Array:
+        """The greedy decision's actor outputs before ``max_action * tanh``, ``[..., 2, action_dim]``. Where
+        ``|x| >> 1`` the actor is saturated: ``tanh'(x) ~ 0`` passes almost no gradient back to it, a known way
+        for DDPG to get stuck (``benchmarks/actor_saturation.py``)."""
+        last = f"_Dense_{len(self.config.hidden_sizes)}"
+
+        def pre(params, x):
+            _, st = self.actor.apply(params, x, capture_intermediates=lambda mdl, _: mdl.name == last)
+            return st["intermediates"][last]["__call__"][0]
+
+        a1 = self.leader_action(actors[LEADER], obs[..., LEADER, :])
+        x2 = (jnp.concatenate([obs[..., FOLLOWER, :], a1], axis=-1) if self.config.stackelberg
+              else obs[..., FOLLOWER, :])
+        return jnp.stack([pre(actors[LEADER], obs[..., LEADER, :]), pre(actors[FOLLOWER], x2)], axis=-2)
+
     def critic_input(self, obs: jax.Array, a1: jax.Array, a2: jax.Array) -> jax.Array:
         """Per-agent critic inputs ``[B, 2, D_in]``: ``[s, a1, a2]`` with ``s = [o1, o2]`` or ``o_i``."""
         b = obs.shape[0]
