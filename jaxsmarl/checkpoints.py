@@ -51,24 +51,31 @@ class Checkpointer:
         self._manager.reload()
         return sorted(self._manager.all_steps())
 
+    def _step(self, step: int | None) -> int:
+        """``step`` if a complete checkpoint holds it, the newest one for None; otherwise an error that names the
+        saved steps (only the newest ``max_to_keep`` are kept)."""
+        steps = self.all_steps()
+        if not steps:
+            raise FileNotFoundError(f"no checkpoint in {self.directory}")
+        if step is None:
+            return steps[-1]
+        if int(step) not in steps:
+            raise ValueError(f"no checkpoint at step {step} in {self.directory}; saved steps: "
+                             f"{', '.join(map(str, steps))}")
+        return int(step)
+
     def restore(self, step: int | None, template: Any) -> tuple[Any, dict]:
         """Load ``(state, meta)`` saved at ``step`` (None: the latest) into the structure of ``template``."""
-        if step is None:
-            step = self.latest_step()
-            if step is None:
-                raise FileNotFoundError(f"no checkpoint in {self.directory}")
+        step = self._step(step)
         abstract = jax.tree.map(_abstract, template)
         args = ocp.args.Composite(state=ocp.args.StandardRestore(abstract), meta=ocp.args.JsonRestore())
-        out = self._manager.restore(int(step), args=args)
+        out = self._manager.restore(step, args=args)
         return out["state"], dict(out["meta"])
 
     def meta(self, step: int | None = None) -> dict:
         """Only the metadata saved at ``step`` (None: the latest), without reading the state."""
-        if step is None:
-            step = self.latest_step()
-            if step is None:
-                raise FileNotFoundError(f"no checkpoint in {self.directory}")
-        out = self._manager.restore(int(step), args=ocp.args.Composite(meta=ocp.args.JsonRestore()))
+        step = self._step(step)
+        out = self._manager.restore(step, args=ocp.args.Composite(meta=ocp.args.JsonRestore()))
         return dict(out["meta"])
 
     def close(self) -> None:

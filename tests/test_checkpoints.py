@@ -58,6 +58,13 @@ def test_keeps_newest_and_ignores_unfinished_saves(tmp_path):
         assert ck.latest_step() == 30
         _, meta = ck.restore(None, st)
         assert meta == {"s": 30}
+        assert ck.restore(20, st)[1] == {"s": 20} and ck.meta(20) == {"s": 20}
+        # a step that was never saved, was dropped, or never finished: a clear error naming the saved steps
+        for step in (10, 25, 40):
+            with pytest.raises(ValueError, match=f"no checkpoint at step {step} .*saved steps: 20, 30"):
+                ck.restore(step, st)
+        with pytest.raises(ValueError, match="saved steps: 20, 30"):
+            ck.meta(10)
 
 
 def test_restore_missing_raises(tmp_path):
