@@ -1,7 +1,8 @@
 """What this machine's matmuls deliver for MLPs of our widths: GFLOP/s of a jitted chain of dense layers
 (``tanh(h @ W)``, 4 layers, 200 scanned repetitions) in float32 and in bfloat16 (float32 accumulation), for a few
-batch sizes and widths. It bounds what any training step built from such layers can reach here; the CS-MADDPG
-speed figures in the README's "Training" section quote it.
+batch sizes and widths, summed over all CPU cores (one JAX device per core, each running its own chain, as
+training splits its seeds; XLA:CPU runs such small products on one thread). It bounds what a training step built
+from such layers can reach here; the CS-MADDPG speed figures in the README's "Training" section quote it.
 
     python benchmarks/mlp_flops.py [--batches 256 2048 8192] [--widths 64 256]
 """
@@ -11,18 +12,29 @@ from __future__ import annotations
 import argparse
 import time
 
-import jax
-import jax.numpy as jnp
-import numpy as np
+import os
+import sys
+
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+
+from train.run import use_all_cpu_cores  # noqa: E402
+
+use_all_cpu_cores()
+
+import jax  # noqa: E402
+import jax.numpy as jnp  # noqa: E402
+import numpy as np  # noqa: E402
 
 
 def gflops(dtype, batch: int, width: int, layers: int = 4, reps: int = 200, repeats: int = 5) -> float:
-    """Median GFLOP/s of ``reps`` passes of ``layers`` dense layers on ``[batch, width]`` inputs."""
+    """Median GFLOP/s, all devices together, of ``reps`` passes of ``layers`` dense layers on ``[batch, width]``
+    inputs on every device."""
+    n = jax.local_device_count()
     ks = jax.random.split(jax.random.PRNGKey(0), layers + 1)
-    x = jax.random.normal(ks[0], (batch, width)).astype(dtype)
-    ws = [(jax.random.normal(k, (width, width)) / np.sqrt(width)).astype(dtype) for k in ks[1:]]
+    x = jax.random.normal(ks[0], (n, batch, width)).astype(dtype)
+    ws = [(jax.random.normal(k, (n, width, width)) / np.sqrt(width)).astype(dtype) for k in ks[1:]]
 
-    @jax.jit
+    @jax.pmap
     def chain(x, ws):
         def body(h, _):
             for w in ws:
@@ -37,7 +49,7 @@ def gflops(dtype, batch: int, width: int, layers: int = 4, reps: int = 200, repe
         t = time.perf_counter()
         chain(x, ws).block_until_ready()
         times.append(time.perf_counter() - t)
-    return 2.0 * batch * width * width * layers * reps / float(np.median(times)) / 1e9
+    return 2.0 * n * batch * width * width * layers * reps / float(np.median(times)) / 1e9
 
 
 def main(argv=None) -> int:
