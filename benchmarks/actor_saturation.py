@@ -25,23 +25,16 @@ def saturation(run_dir: str, step: int | None = None, starts: int = 16) -> list[
     import jax
     import numpy as np
 
-    from jaxsmarl.algos.maddpg import MADDPGAgent
-    from jaxsmarl.checkpoints import Checkpointer
     from train.config import read_run_config
-    from train.loop import make_train, seed_keys
+    from train.run import restore_run
 
     if starts < 1:
         raise ValueError(f"--starts must be at least 1, got {starts}")
-    config = read_run_config(run_dir)
-    trainer = make_train(config)
-    if not isinstance(trainer.agent, MADDPGAgent):
-        raise ValueError(f"{run_dir} is a '{config['algo']}' run; this check is for the MADDPG family "
+    algo = read_run_config(run_dir)["algo"]
+    if algo not in ("cs-maddpg", "s-maddpg", "c-maddpg", "maddpg"):
+        raise ValueError(f"{run_dir} is a '{algo}' run; this check is for the MADDPG family "
                          "(cs-maddpg, s-maddpg, c-maddpg, maddpg), whose actors end in tanh")
-    template = jax.eval_shape(jax.vmap(trainer.init), seed_keys(config))
-    with Checkpointer(os.path.join(run_dir, "checkpoints")) as ckpt:
-        if ckpt.latest_step() is None:
-            raise ValueError(f"{run_dir}/checkpoints holds no complete checkpoint yet")
-        state, meta = ckpt.restore(step, template)
+    _, trainer, state, meta = restore_run(run_dir, step)
     env, params = trainer.env, trainer.env.default_params
     obs, _ = jax.vmap(env.reset, in_axes=(0, None))(jax.random.split(jax.random.PRNGKey(0), starts), params)
     pre = jax.vmap(trainer.agent.greedy_preactivations, in_axes=(0, None))(state.agent.actors, obs)

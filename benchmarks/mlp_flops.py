@@ -10,10 +10,9 @@ from such layers can reach here; the CS-MADDPG speed figures in the README's "Tr
 from __future__ import annotations
 
 import argparse
-import time
-
 import os
 import sys
+import time
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 

@@ -399,30 +399,15 @@ def render_episode(env, params, policy: Callable, out: str, seed: int = 0, strid
 
 
 def load_checkpoint_policy(run_dir: str, seed: int = 0, step: int | None = None):
-    """``(env, params, policy, config)`` for seed ``seed``'s greedy agent in run folder ``run_dir``.
-
-    Rebuilds the trainer from ``config.json`` (nothing is compiled) and restores the newest checkpoint (or
-    ``step``) with :class:`jaxsmarl.checkpoints.Checkpointer`.
-    """
-    from jaxsmarl.checkpoints import Checkpointer
+    """``(env, params, policy, config)`` for seed ``seed``'s greedy agent in run folder ``run_dir`` (newest
+    checkpoint, or ``step``; :func:`train.run.restore_run`)."""
     from train.config import read_run_config
-    from train.loop import make_train, seed_keys
+    from train.run import restore_run
 
-    cfg_path = os.path.join(run_dir, "config.json")
-    ckpt_dir = os.path.join(run_dir, "checkpoints")
-    if not os.path.isfile(cfg_path) or not os.path.isdir(ckpt_dir):
-        raise ValueError(f"{run_dir} is not a run folder (needs config.json and checkpoints/, as written by "
-                         "python -m train)")
-    config = read_run_config(run_dir)
-    n = int(config["num_seeds"])
+    n = int(read_run_config(run_dir)["num_seeds"])  # a bad seed fails before anything is loaded
     if not 0 <= seed < n:
         raise ValueError(f"--seed must be a seed index of the run, 0..{n - 1}, got {seed}")
-    trainer = make_train(config)
-    template = jax.eval_shape(jax.vmap(trainer.init), seed_keys(config))
-    with Checkpointer(ckpt_dir) as ckpt:
-        if ckpt.latest_step() is None:
-            raise ValueError(f"{ckpt_dir} holds no complete checkpoint yet")
-        state, _ = ckpt.restore(step, template)
+    config, trainer, state, _ = restore_run(run_dir, step)
     agent_state = jax.tree.map(lambda x: jnp.asarray(x[seed]), state.agent)
     agent = trainer.agent
     policy = lambda key, obs: agent.greedy_act(agent_state, obs)

@@ -31,7 +31,7 @@ from jaxsmarl.checkpoints import Checkpointer
 from train.loop import make_train, seed_keys
 from train.config import read_run_config
 
-__all__ = ["run", "evaluate_checkpoint", "use_all_cpu_cores", "seed_sharding", "seed_parallel", "seed_loop"]
+__all__ = ["run", "restore_run", "evaluate_checkpoint", "use_all_cpu_cores", "seed_sharding", "seed_parallel", "seed_loop"]
 
 
 # XLA:CPU flags for the training programs. YNNPACK's "reduce" fusions run the reductions over the batch axis of
@@ -368,6 +368,24 @@ def _write_eval_csv(path: str, rows: list[dict]) -> None:
         w.writeheader()
         w.writerows(rows)
     os.replace(path + ".tmp", path)
+
+
+def restore_run(run_dir: str, step: int | None = None):
+    """``(config, trainer, state, meta)`` of run folder ``run_dir``: its configuration (later-added keys at their
+    defaults), the trainer rebuilt from it (nothing is compiled) and the training state of all seeds from the
+    newest checkpoint (or ``step``)."""
+    ckpt_dir = os.path.join(run_dir, "checkpoints")
+    config = read_run_config(run_dir)
+    if not os.path.isdir(ckpt_dir):
+        raise ValueError(f"{run_dir} is not a run folder (needs config.json and checkpoints/, as written by "
+                         "python -m train)")
+    trainer = make_train(config)
+    template = jax.eval_shape(jax.vmap(trainer.init), seed_keys(config))
+    with Checkpointer(ckpt_dir) as ckpt:
+        if ckpt.latest_step() is None:
+            raise ValueError(f"{ckpt_dir} holds no complete checkpoint yet")
+        state, meta = ckpt.restore(step, template)
+    return config, trainer, state, meta
 
 
 def evaluate_checkpoint(out: str, episodes: int | None = None, step: int | None = None, env=None) -> dict:
