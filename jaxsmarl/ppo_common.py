@@ -14,6 +14,7 @@ running normalisers and the critic loss.
   normalisation and for the value-target normalisation (the reference's ValueNorm; one per critic here instead
   of the reference's shared reward normaliser, a documented deviation).
 * :func:`value_loss`: clipped value loss with the Huber loss (clip 0.2, delta 10; §2.3 step 4).
+* :func:`random_permutation`: the minibatch shuffle, like ``jax.random.permutation`` but ~3x cheaper on XLA:CPU.
 """
 
 from __future__ import annotations
@@ -25,8 +26,36 @@ import flax.struct
 import jax
 import jax.numpy as jnp
 
-__all__ = ["MLP", "orthogonal_init", "std_from_param", "gaussian_log_prob", "gaussian_entropy", "gaussian_kl", "RunningStats",
+__all__ = ["MLP", "random_permutation", "orthogonal_init", "std_from_param", "gaussian_log_prob", "gaussian_entropy", "gaussian_kl", "RunningStats",
            "huber", "value_loss", "masked_mean", "standardize"]
+
+
+def random_permutation(key, n: int):
+    """A uniformly random permutation of ``range(n)`` (int32), by sorts of single packed ``uint32`` keys.
+
+    ``jax.random.permutation`` shuffles with ``ceil(3 ln n / ln(2^32 - 1))`` rounds of a stable key-value sort
+    (random keys, the array as values); XLA:CPU takes ~1.4 ms per such sort of 8192 elements and ~0.33 ms to
+    sort 8192 plain ``uint32``s. Here each round packs ``32 - b`` random bits (``b = ceil(log2 n)``) above the
+    element's current position (the low ``b`` bits), sorts those distinct keys and reads the positions back
+    from the low bits: equal random parts keep the previous order, as in jax's stable rounds. The number of
+    rounds keeps jax's collision standard (at least ``3 log2 n`` random bits per element in all): 3 rounds of 19
+    bits for n = 8192 (jax: 2 rounds of 32 bits); 10 permutations of 8192 take 9.6 ms on one core against jax's
+    28.3 (the MAPPO-L update draws 10 per seed; ~8% of its time saved). Beyond ``n =
+    2^24`` (fewer than 8 random bits per round) it is ``jax.random.permutation``.
+    """
+    if not isinstance(n, int) or n < 1:
+        raise ValueError(f"random_permutation: n must be a positive int, got {n!r}")
+    b = max(1, (n - 1).bit_length())
+    if b > 24:
+        return jax.random.permutation(key, n).astype(jnp.int32)
+    rounds = math.ceil(3 * math.log2(max(n, 2)) / (32 - b))
+    low = jnp.uint32((1 << b) - 1)
+    position = jnp.arange(n, dtype=jnp.uint32)
+    perm = jnp.arange(n, dtype=jnp.int32)
+    for k in jax.random.split(key, rounds):
+        packed = (jax.random.bits(k, (n,), jnp.uint32) & ~low) | position
+        perm = perm[(jax.lax.sort(packed) & low).astype(jnp.int32)]
+    return perm
 
 
 def orthogonal_init(scale: float = 1.0):

@@ -10,6 +10,7 @@ import pytest
 
 from jaxsmarl.algos.mappo_l import MAPPOL, lagrange_step
 from jaxsmarl.algos.ppo_base import PPOConfig
+from jaxsmarl.ppo_common import random_permutation
 from train import __main__ as cli
 from train.config import load_config
 from train.onpolicy import Transition
@@ -109,3 +110,37 @@ def test_config_rejects_partial_cycles():
                                               "chunk_steps": 128, "num_minibatches": 3})
     with pytest.raises(ValueError, match="needs continuous actions"):
         load_config("merge", "macpo")
+
+
+@pytest.mark.parametrize("n", [1, 2, 7, 512, 8192, 10_000])
+def test_random_permutation_is_a_permutation(n):
+    perms = jax.jit(jax.vmap(lambda k: random_permutation(k, n)))(jax.random.split(jax.random.PRNGKey(0), 4))
+    assert perms.dtype == jnp.int32 and perms.shape == (4, n)
+    for p in np.asarray(perms):
+        np.testing.assert_array_equal(np.sort(p), np.arange(n))
+
+
+def test_random_permutation_is_uniform():
+    """Every one of the 4! orders of 4 elements equally likely (chi-square, 24,000 draws; p ~ 1e-4 threshold),
+    and every element equally likely at every position of 8192 (first and last positions over 4,000 draws)."""
+    perms = np.asarray(jax.jit(jax.vmap(lambda k: random_permutation(k, 4)))(
+        jax.random.split(jax.random.PRNGKey(1), 24_000)))
+    codes = perms @ np.array([64, 16, 4, 1])
+    counts = np.array([np.sum(codes == c) for c in np.unique(codes)])
+    assert len(counts) == 24
+    chi2 = np.sum((counts - 1000.0) ** 2 / 1000.0)
+    assert chi2 < 55.0, chi2  # chi-square, 23 degrees of freedom: P(> 55) ~ 2e-4
+
+    big = np.asarray(jax.jit(jax.vmap(lambda k: random_permutation(k, 8192)))(
+        jax.random.split(jax.random.PRNGKey(2), 4_000)))
+    for pos in (0, 8191):
+        # which eighth of range(8192) lands at this position: uniform over 8 bins
+        counts = np.bincount(big[:, pos] // 1024, minlength=8)
+        chi2 = np.sum((counts - 500.0) ** 2 / 500.0)
+        assert chi2 < 30.0, (pos, counts)  # 7 degrees of freedom: P(> 30) ~ 1e-4
+
+
+def test_random_permutation_rejects_bad_sizes():
+    for n in (0, -3, 2.5):
+        with pytest.raises(ValueError, match="positive int"):
+            random_permutation(jax.random.PRNGKey(0), n)

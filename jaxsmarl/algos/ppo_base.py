@@ -291,5 +291,6 @@ class PPOBase(abc.ABC):
 
     @staticmethod
     def minibatch_indices(key, n: int, num_minibatches: int):
-        """A random partition of ``range(n)`` into ``[num_minibatches, n // num_minibatches]``."""
-        return jax.random.permutation(key, n).reshape(num_minibatches, n // num_minibatches)
+        """A random partition of ``range(n)`` into ``[num_minibatches, n // num_minibatches]``
+        (:func:`jaxsmarl.ppo_common.random_permutation`)."""
+        return pc.random_permutation(key, n).reshape(num_minibatches, n // num_minibatches)
