@@ -26,8 +26,9 @@ import shutil
 import sys
 import time
 
-os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") +
-                           " --xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1")
+# Only "--" flags: XLA stops reading XLA_FLAGS at the first word that is not one (a former
+# "intra_op_parallelism_threads=1" here silently dropped every flag after it).
+os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " --xla_cpu_multi_thread_eigen=false").strip()
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 

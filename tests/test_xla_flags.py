@@ -1,6 +1,8 @@
 """train.run.use_all_cpu_cores adds its XLA:CPU flags only where jaxlib knows them: an unknown XLA_FLAGS entry
 aborts the process at backend start-up, so on an older jaxlib the flags must stay out."""
 
+import os
+
 import train.run as run
 
 
@@ -18,7 +20,7 @@ def _flags_after(monkeypatch, version, xla_flags):
 
 def test_flags_added_on_a_jaxlib_that_knows_them(monkeypatch):
     flags = _flags_after(monkeypatch, (0, 10, 2), "--xla_force_host_platform_device_count=1")
-    assert flags.startswith("--xla_force_host_platform_device_count=1 ")
+    assert flags.endswith(" --xla_force_host_platform_device_count=1")
     for f in run.XLA_CPU_FLAGS:
         assert f in flags.split()
 
@@ -37,3 +39,21 @@ def test_a_user_setting_wins(monkeypatch):
 def test_jaxlib_version_is_parsed():
     v = run._jaxlib_version()
     assert len(v) == 3 and all(isinstance(x, int) for x in v)
+
+
+def test_flags_survive_a_stray_word_in_the_users_flags():
+    """XLA stops reading XLA_FLAGS at the first word that is not a "--" flag, so ours go first. Checked in a
+    fresh process on the compiled program: with "-reduce" a batch-axis sum is not a YNNPACK fusion."""
+    import subprocess
+    import sys
+
+    code = ("import jax, jax.numpy as jnp, train.run as run; run.use_all_cpu_cores(); "
+            "t = jax.jit(lambda x: (x * x).sum(0)).lower(jnp.ones((512, 64))).compile().as_text(); "
+            "print('ynn' in t, run._jaxlib_version() >= run.XLA_CPU_FLAGS_SINCE)")
+    env = dict(os.environ, XLA_FLAGS="--xla_cpu_multi_thread_eigen=false stray_word", JAX_PLATFORMS="cpu")
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120,
+                         cwd=os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    assert out.returncode == 0, out.stderr[-2000:]
+    ynn, known = out.stdout.split()
+    if known == "True":
+        assert ynn == "False", "the -reduce flag was dropped"

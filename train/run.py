@@ -55,14 +55,14 @@ def _jaxlib_version() -> tuple[int, ...]:
 
 def use_all_cpu_cores() -> bool:
     """Expose every CPU core as its own JAX device so that seeds run on all cores in parallel (XLA:CPU runs the
-    critics' small matrix products on one thread), and add :data:`XLA_CPU_FLAGS` to ``XLA_FLAGS`` (unless
+    critics' small matrix products on one thread), and put :data:`XLA_CPU_FLAGS` first in ``XLA_FLAGS`` (unless
     ``XLA_FLAGS`` already sets them, or jaxlib predates them). Must run before JAX executes anything; returns
     success."""
     flags = os.environ.get("XLA_FLAGS", "")
     known = _jaxlib_version() >= XLA_CPU_FLAGS_SINCE
     extra = [f for f in XLA_CPU_FLAGS if known and f.split("=")[0] not in flags]
-    if extra:
-        os.environ["XLA_FLAGS"] = " ".join([flags] + extra).strip()
+    if extra:  # ahead of the user's: XLA stops reading XLA_FLAGS at the first word that is not a "--" flag
+        os.environ["XLA_FLAGS"] = " ".join(extra + [flags]).strip()
     try:
         jax.config.update("jax_num_cpu_devices", max(1, os.cpu_count() or 1))
         return True
