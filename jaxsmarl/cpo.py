@@ -17,7 +17,7 @@ from typing import Callable
 import jax
 import jax.numpy as jnp
 
-__all__ = ["fisher_vector_product", "conjugate_gradient", "cpo_direction", "first_accepted", "line_search"]
+__all__ = ["fisher_vector_product", "gauss_newton_operator", "conjugate_gradient", "cpo_direction", "first_accepted", "line_search"]
 
 EPS = 1e-8
 
@@ -25,6 +25,26 @@ EPS = 1e-8
 def fisher_vector_product(kl_fn: Callable, theta, v, damping: float = 0.1):
     """``Hessian(kl_fn)(theta) @ v + damping * v`` (forward-over-reverse)."""
     return jax.jvp(jax.grad(kl_fn), (theta,), (v,))[1] + damping * v
+
+
+def gauss_newton_operator(outputs_fn: Callable, out_kl_fn: Callable, theta, damping: float = 0.1) -> Callable:
+    """``v -> J^T H_out J v + damping * v``: the KL's Hessian in the form ``J`` (Jacobian of the network outputs
+    ``outputs_fn(theta)``) then ``H_out`` (Hessian of ``out_kl_fn`` in the outputs, by forward-over-reverse on
+    the outputs only) then ``J^T``.
+
+    At the reference point of the KL (the old policy's outputs equal ``outputs_fn(theta)``) the KL's gradient
+    in the outputs vanishes, so this is the Hessian of ``out_kl_fn(outputs_fn(theta))`` exactly, i.e. what
+    :func:`fisher_vector_product` computes. The network is linearised once (one forward pass shared by all
+    products), and a product costs one tangent pass and one backward pass of the network, instead of
+    differentiating its backward pass forward-mode.
+    """
+    out, jvp_fn = jax.linearize(outputs_fn, theta)
+    vjp_fn = jax.linear_transpose(jvp_fn, theta)
+
+    def hess_out(t):
+        return jax.jvp(jax.grad(out_kl_fn), (out,), (t,))[1]
+
+    return lambda v: vjp_fn(hess_out(jvp_fn(v)))[0] + damping * v
 
 
 def conjugate_gradient(avp: Callable, b, iters: int = 10, residual_tol: float = 1e-10):
