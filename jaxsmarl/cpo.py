@@ -2,6 +2,7 @@
 
 * :func:`fisher_vector_product`: ``(H + damping I) v`` with ``H`` the Hessian of the mean KL at the current
   parameters, by forward-over-reverse differentiation (``jvp`` of ``grad``); the reference adds ``0.1 v``.
+  :func:`gauss_newton_operator`: the same product as ``J^T H_out J`` with the network linearised once (MACPO's).
 * :func:`conjugate_gradient`: ``H^-1 b`` in ``iters`` steps (``lax.fori_loop``; the reference stops early when
   ``r.r < 1e-10``, reproduced by freezing the iterate).
 * :func:`cpo_direction`: the five-case dual solution (``optim_case`` 0..4) with the reference's EPS
@@ -17,7 +18,8 @@ from typing import Callable
 import jax
 import jax.numpy as jnp
 
-__all__ = ["fisher_vector_product", "gauss_newton_operator", "conjugate_gradient", "cpo_direction", "first_accepted", "line_search"]
+__all__ = ["fisher_vector_product", "gauss_newton_operator", "conjugate_gradient", "cpo_direction", "first_accepted",
+           "line_search"]
 
 EPS = 1e-8
 

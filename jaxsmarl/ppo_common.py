@@ -20,6 +20,7 @@ running normalisers and the critic loss.
 from __future__ import annotations
 
 import math
+import operator
 
 import flax.linen as nn
 import flax.struct
@@ -43,8 +44,13 @@ def random_permutation(key, n: int):
     28.3 (the MAPPO-L update draws 10 per seed; ~8% of its time saved). Beyond ``n =
     2^24`` (fewer than 8 random bits per round) it is ``jax.random.permutation``.
     """
-    if not isinstance(n, int) or n < 1:
+    try:
+        size = operator.index(n)
+    except TypeError:
+        size = 0
+    if size < 1:
         raise ValueError(f"random_permutation: n must be a positive int, got {n!r}")
+    n = size
     b = max(1, (n - 1).bit_length())
     if b > 24:
         return jax.random.permutation(key, n).astype(jnp.int32)

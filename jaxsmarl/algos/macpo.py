@@ -8,7 +8,7 @@ For each of ``num_minibatches`` minibatches (one pass, no epochs), agent i:
    (the network and ``log_std``);
 4. ``H^-1 g``, ``H^-1 b`` by conjugate gradient with products by the Hessian of the mean KL at the current
    parameters (damping 0.1), computed as ``J^T H_out J`` (:func:`jaxsmarl.cpo.gauss_newton_operator`: the same
-   matrix, ~40% less MACPO update time than differentiating the KL's gradient forward-mode);
+   matrix, ~35% less MACPO update time than differentiating the KL's gradient forward-mode);
 5. the CPO direction (:func:`jaxsmarl.cpo.cpo_direction`);
 6. the line search (:func:`jaxsmarl.cpo.line_search`): accept a candidate if ``KL < delta``, the reward loss
    improved (only when ``optim_case > 1``) and the cost surrogate grew by at most ``max(-c, 0)``.
