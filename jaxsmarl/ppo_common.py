@@ -27,8 +27,8 @@ import flax.struct
 import jax
 import jax.numpy as jnp
 
-__all__ = ["MLP", "random_permutation", "orthogonal_init", "std_from_param", "gaussian_log_prob", "gaussian_entropy", "gaussian_kl", "RunningStats",
-           "huber", "value_loss", "masked_mean", "standardize"]
+__all__ = ["MLP", "random_permutation", "orthogonal_init", "std_from_param", "gaussian_log_prob", "gaussian_entropy",
+           "gaussian_kl", "RunningStats", "huber", "value_loss", "masked_mean", "standardize"]
 
 
 def random_permutation(key, n: int):

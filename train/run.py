@@ -31,7 +31,8 @@ from jaxsmarl.checkpoints import Checkpointer
 from train.loop import make_train, seed_keys
 from train.config import read_run_config
 
-__all__ = ["run", "restore_run", "evaluate_checkpoint", "use_all_cpu_cores", "seed_sharding", "seed_parallel", "seed_loop"]
+__all__ = ["run", "restore_run", "evaluate_checkpoint", "use_all_cpu_cores", "seed_sharding", "seed_parallel",
+           "seed_loop"]
 
 
 # XLA:CPU flags for the training programs. YNNPACK's "reduce" fusions run the reductions over the batch axis of
