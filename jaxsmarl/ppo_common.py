@@ -15,6 +15,7 @@ running normalisers and the critic loss.
   of the reference's shared reward normaliser, a documented deviation).
 * :func:`value_loss`: clipped value loss with the Huber loss (clip 0.2, delta 10; §2.3 step 4).
 * :func:`random_permutation`: the minibatch shuffle, like ``jax.random.permutation`` but ~3x cheaper on XLA:CPU.
+* :func:`mlp_columns`: :class:`MLP` on column samples (:mod:`jaxsmarl.columns`), for the update's gradients.
 """
 
 from __future__ import annotations
@@ -27,8 +28,10 @@ import flax.struct
 import jax
 import jax.numpy as jnp
 
-__all__ = ["MLP", "random_permutation", "orthogonal_init", "std_from_param", "gaussian_log_prob", "gaussian_entropy",
-           "gaussian_kl", "RunningStats", "huber", "value_loss", "masked_mean", "standardize"]
+from jaxsmarl import columns
+
+__all__ = ["MLP", "mlp_columns", "random_permutation", "orthogonal_init", "std_from_param", "gaussian_log_prob",
+           "gaussian_entropy", "gaussian_kl", "RunningStats", "huber", "value_loss", "masked_mean", "standardize"]
 
 
 def random_permutation(key, n: int):
@@ -115,6 +118,28 @@ class MLP(nn.Module):
             x = nn.LayerNorm(epsilon=1e-5)(nn.relu(x))
         return nn.Dense(self.out_dim, kernel_init=orthogonal_init(self.out_gain),
                         bias_init=nn.initializers.zeros)(x)
+
+
+def _layer_norm_columns(x, p, eps: float = 1e-5):
+    """flax ``LayerNorm`` (fast variance, clipped at 0) over the feature axis 0 of ``x [features, B]``."""
+    mean = jnp.mean(x, axis=0, keepdims=True)
+    var = jnp.maximum(0.0, jnp.mean(jnp.square(x), axis=0, keepdims=True) - jnp.square(mean))
+    return (x - mean) * jax.lax.rsqrt(var + eps) * p["scale"][:, None] + p["bias"][:, None]
+
+
+def mlp_columns(params, xt, layer_n: int = 1, feature_norm: bool = True):
+    """:class:`MLP` on samples stored as columns: ``xt [in, B] -> [out, B]``, with the module's own parameters.
+
+    The same function as ``MLP.apply(params, xt.T).T`` with faster reverse-mode gradients on XLA:CPU
+    (:mod:`jaxsmarl.columns`); no forward-mode derivative.
+    """
+    p = params["params"]
+    x = _layer_norm_columns(xt, p["LayerNorm_0"]) if feature_norm else xt
+    ln = 1 if feature_norm else 0
+
+    for j in range(1 + layer_n):
+        x = _layer_norm_columns(jax.nn.relu(columns.dense(p[f"Dense_{j}"], x)), p[f"LayerNorm_{ln + j}"])
+    return columns.dense(p[f"Dense_{1 + layer_n}"], x)
 
 
 def std_from_param(log_std, x_coef: float, y_coef: float):

@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 from jax.flatten_util import ravel_pytree
 
-from jaxsmarl.algos.maddpg import MADDPGAgent, MADDPGConfig, Transition
+from jaxsmarl.algos.maddpg import (MADDPGAgent, MADDPGConfig, Transition, actor_columns, critic_values,
+                                   critic_values_columns)
 from train.config import load_config
 
 D = 8
@@ -81,6 +82,32 @@ def test_leader_gradient_goes_through_the_follower(setup):
         return jnp.mean(-q + lam[0] * (g - agent.config.cost_threshold[0]))
 
     np.testing.assert_allclose(g_naive, _fd_grad(frozen, st.actors[0]), rtol=1e-5, atol=1e-8)
+
+
+@pytest.mark.parametrize("critic_input", ["joint", "own"])
+def test_column_layout_networks_are_the_same_functions_with_the_same_gradients(critic_input, x64):
+    """The update's column-layout critics and actors (jaxsmarl.columns) against the stacked einsum critics and
+    the flax actor: values and every parameter's and input's gradient, float64, reference-sized networks."""
+    agent = _agent(hidden_sizes=(64, 64, 64), critic_input=critic_input)
+    st = jax.tree.map(lambda x: x.astype(jnp.float64) if x.dtype == jnp.float32 else x,
+                      agent.init(jax.random.PRNGKey(3)))
+    obs = jax.random.normal(jax.random.PRNGKey(4), (300, 2, D))
+    act = jax.random.uniform(jax.random.PRNGKey(5), (300, 2, 1), jnp.float64, -1, 1)
+    x = agent.critic_input(obs, act[:, 0], act[:, 1])
+    w = jax.random.normal(jax.random.PRNGKey(6), (300, 2, 2))
+    np.testing.assert_allclose(critic_values_columns(st.critics, x), critic_values(st.critics, x), rtol=1e-12,
+                               atol=1e-12)
+    loss = lambda f: (lambda p, x: jnp.sum(w * jnp.tanh(f(p, x))))
+    for a, b in zip(jax.tree.leaves(jax.grad(loss(critic_values), (0, 1))(st.critics, x)),
+                    jax.tree.leaves(jax.jit(jax.grad(loss(critic_values_columns), (0, 1)))(st.critics, x))):
+        np.testing.assert_allclose(b, a, rtol=1e-10, atol=1e-12)
+    x2 = jnp.concatenate([obs[:, 1], act[:, 0]], -1)
+    theta2 = st.actors[1]
+    np.testing.assert_allclose(actor_columns(theta2, x2, 1.0), agent.actor.apply(theta2, x2), rtol=1e-12, atol=1e-12)
+    ref = jax.grad(lambda p, x: jnp.sum(jnp.sin(3.0 * agent.actor.apply(p, x))), (0, 1))(theta2, x2)
+    col = jax.grad(lambda p, x: jnp.sum(jnp.sin(3.0 * actor_columns(p, x, 1.0))), (0, 1))(theta2, x2)
+    for a, b in zip(jax.tree.leaves(ref), jax.tree.leaves(col)):
+        np.testing.assert_allclose(b, a, rtol=1e-10, atol=1e-12)
 
 
 def test_follower_gradient_through_a2_only_and_no_cross_terms(setup):

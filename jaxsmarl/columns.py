@@ -1,0 +1,46 @@
+"""Dense layers on samples stored as columns (``x [features, B]``), for fast gradients on XLA:CPU.
+
+With samples as rows, reverse-mode autodiff of ``x @ W`` computes the weight gradient as ``x^T @ g``, a product
+that contracts the sample axis of both operands in first position; XLA:CPU hands that layout to a generic kernel
+that runs ~3x slower than a row-major ``[m, k] @ [k, n]`` product of the same size (YNNPACK takes only the latter).
+With samples as columns every product of a dense layer can be made row-major: the forward pass ``W^T @ x`` (the
+small kernel transposed explicitly), the input gradient ``W @ g`` and the weight gradient ``x @ g^T``, which
+contracts the last axes of both operands (~as fast as a forward product). :func:`dense` is that layer with its
+own reverse-mode rule; it computes exactly ``(x^T @ W)^T``, so networks built on it share their parameters
+(flax ``kernel [in, out]``) with the row-layout modules. It has no forward-mode derivative (``jax.jvp``).
+
+Measured on one core: a 3-layer MLP forward + backward on 512 samples ~15% faster; MAPPO-L's whole update ~15%.
+"""
+
+from __future__ import annotations
+
+import jax
+
+__all__ = ["dense", "linear"]
+
+
+@jax.custom_vjp
+def linear(kernel, xt):
+    """``kernel^T @ xt``: ``kernel [in, out]``, ``xt [in, B]`` -> ``[out, B]``.
+
+    The kernel is transposed behind an optimisation barrier so that XLA keeps the transposed copy (64 x 64 for
+    the reference networks) instead of folding the transpose back into the product."""
+    return jax.lax.optimization_barrier(kernel.T) @ xt
+
+
+def _linear_fwd(kernel, xt):
+    return linear(kernel, xt), (kernel, xt)
+
+
+def _linear_bwd(res, g):
+    kernel, xt = res
+    return jax.lax.dot_general(xt, g, (((1,), (1,)), ((), ()))), kernel @ g  # xt @ g^T [in, out]; kernel @ g
+
+
+linear.defvjp(_linear_fwd, _linear_bwd)
+
+
+def dense(params, xt):
+    """A flax ``Dense`` (``{"kernel": [in, out], "bias": [out]}``) on column samples: ``[in, B] -> [out, B]``."""
+    return linear(params["kernel"], xt) + params["bias"][:, None]
+
