@@ -34,16 +34,14 @@ class MACPO(PPOBase):
         theta, unravel = ravel_pytree(actor)
 
         policy_at = lambda th: self.policy(unravel(th), o)  # (mean [B, k], std [k])
-        policy_cols = lambda th: self.policy(unravel(th), o, columns=True)  # the same; fast reverse mode only
 
         def surrogates_of(out):
             mean, std = out
             ratio = jnp.exp(pc.gaussian_log_prob(a, mean, std) - lo)
             return -pc.masked_mean(ratio * f * ar, m), pc.masked_mean(ratio * f * ac, m)
 
-        # both gradients from one forward pass (the column layout: faster reverse mode on XLA:CPU)
-        (reward_loss, cost_loss), pullback = jax.vjp(
-            lambda th: surrogates_of(policy_cols(th)), theta)
+        # both gradients from one forward pass
+        (reward_loss, cost_loss), pullback = jax.vjp(lambda th: surrogates_of(policy_at(th)), theta)
         one, zero = jnp.ones_like(reward_loss), jnp.zeros_like(reward_loss)
         (g,), (b,) = pullback((one, zero)), pullback((zero, one))
         mean_old, std_old = jax.lax.stop_gradient(policy_at(theta))
@@ -53,7 +51,7 @@ class MACPO(PPOBase):
             return pc.masked_mean(pc.gaussian_kl(mean_old, std_old, mean, jnp.broadcast_to(std, mean.shape)), m)
 
         # the KL's Hessian at theta, J^T H_out J (the Fisher matrix; see cpo.gauss_newton_operator)
-        fvp = cpo.gauss_newton_operator(policy_at, kl_of, theta, cfg.fvp_damping, policy_cols)
+        fvp = cpo.gauss_newton_operator(policy_at, kl_of, theta, cfg.fvp_damping)
         hinv_g = cpo.conjugate_gradient(fvp, g, cfg.cg_iters)
         hinv_b = cpo.conjugate_gradient(fvp, b, cfg.cg_iters)
         c = (jc - cfg.cost_limit) * (1.0 - cfg.gamma)

@@ -6,7 +6,7 @@ Two agents, deterministic actors bounded by ``max_action * tanh``:
   ``stackelberg=False`` (plain MADDPG) ``a2 = mu2(o2)``.
 * per agent a centralized reward critic ``Q_i(s, a1, a2)`` and (``constrained=True``) cost critic
   ``G_i(s, a1, a2)``, stacked as ``[2 agents, K kinds]`` (acting and evaluation: batched einsums over the
-  stack; the update: each network alone in the column layout of :mod:`jaxsmarl.columns`, ~14% faster there).
+  stack; the update: each network alone in the column layout of :mod:`jaxsmarl.columns`, faster on XLA:CPU).
   ``critic_input="joint"``: ``s = [o1, o2]`` (paper: the global state); ``"own"``: ``s = o_i`` (the authors'
   critics, original_code.md §3).
 * Critic targets (Alg. 2, critic / cost-critic updates): ``y_i = r_i + gamma (1 - t_i) Q_i^targ(s', a1', a2')``,
