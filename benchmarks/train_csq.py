@@ -37,12 +37,12 @@ def bench(seeds: int, steps: int, chunk_steps: int, scenario: str, algo: str) ->
     init = seed_parallel(trainer.init, seeds).lower(keys).compile()
     state = init(keys)
     jax.block_until_ready(state)
-    chunk = seed_parallel(trainer.run_chunk, seeds, in_axes=(0, None), donate_argnums=0).lower(
-        state, jnp.int32(0)).compile()
+    chunk = seed_parallel(trainer.run_chunk, seeds, in_axes=(0, None), donate_argnums=0,
+                          sequential=trainer.seeds_in_sequence).lower(state, jnp.int32(0)).compile()
     tail = None
     if trainer.run_tail is not None:
-        tail = seed_parallel(trainer.run_tail, seeds, in_axes=(0, None), donate_argnums=0).lower(
-            state, jnp.int32(0)).compile()
+        tail = seed_parallel(trainer.run_tail, seeds, in_axes=(0, None), donate_argnums=0,
+                             sequential=trainer.seeds_in_sequence).lower(state, jnp.int32(0)).compile()
     compile_s = time.perf_counter() - t0
     load0 = os.getloadavg()[0]
     t1, c1 = time.perf_counter(), time.process_time()

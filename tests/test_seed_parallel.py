@@ -112,21 +112,24 @@ def test_seed_loop_runs_each_seed_by_itself():
         seed_loop(fn, in_axes=(1, 0, None))(p, x, 2.0)
 
 
-def test_onpolicy_chunks_run_seeds_in_sequence():
-    # MAPPO-L's seeds 0 and 1 of a 3-seed run equal those of a 2-seed run, bit for bit: each seed is computed by
-    # the same unbatched program (batched programs of 2 and 3 seeds differ in round-off). One seed alone is not
-    # compared: XLA inlines a one-trip loop and fuses that program differently.
+@pytest.mark.parametrize("algo", ["mappo-l", "cs-maddpg"])
+def test_training_chunks_run_seeds_in_sequence(algo):
+    # Seeds 0 and 1 of a 3-seed run equal those of a 2-seed run, bit for bit: each seed is computed by the same
+    # unbatched program (batched programs of 2 and 3 seeds differ in round-off). One seed alone is not compared:
+    # XLA inlines a one-trip loop and fuses that program differently.
     import train.run as run
     from train.config import load_config
 
     if jax.default_backend() != "cpu":
-        pytest.skip("seeds run one after another only on the CPU backend (train/onpolicy.py)")
+        pytest.skip("seeds run one after another only on the CPU backend (train/onpolicy.py, train/algos/maddpg.py)")
 
-    over = dict(total_steps=128, num_envs=8, rollout_length=8, num_minibatches=2, ppo_epochs=2, chunk_steps=128,
-                checkpoint_every=0, eval_episodes=0)
+    over = {"mappo-l": dict(total_steps=128, num_envs=8, rollout_length=8, num_minibatches=2, ppo_epochs=2,
+                            chunk_steps=128),
+            "cs-maddpg": dict(total_steps=96, chunk_steps=96, warmup=16, batch_size=8, buffer_size=96)}[algo]
+    over.update(checkpoint_every=0, eval_episodes=0)
     final = {}
     for s in (2, 3):
-        prog = run._program(load_config("racetrack", "mappo-l", dict(over, num_seeds=s)))
+        prog = run._program(load_config("racetrack", algo, dict(over, num_seeds=s)))
         assert prog["trainer"].seeds_in_sequence
         state = prog["init"](seed_keys(prog["trainer"].config))
         state, _ = prog["chunk"](state, jnp.int32(0))

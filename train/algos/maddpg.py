@@ -143,10 +143,15 @@ def make_agent(config: dict, env):
 
 
 def make_train(config: dict, env=None):
+    import jax
+
     from train.loop import make_env, make_offpolicy_train
 
     env = make_env(config["scenario"]) if env is None else env
-    return make_offpolicy_train(config, env, make_agent(config, env[0]))
+    trainer = make_offpolicy_train(config, env, make_agent(config, env[0]))
+    # 8 seeds on the 2-core CPU: ~8% more env steps/s with each device's seeds run one after another (CSQ: no
+    # difference, so it keeps them batched)
+    return trainer._replace(seeds_in_sequence=jax.default_backend() == "cpu")
 
 
 register(
