@@ -19,7 +19,13 @@ from __future__ import annotations
 
 import jax
 
-__all__ = ["dense", "linear"]
+__all__ = ["dense", "linear", "enabled"]
+
+
+def enabled() -> bool:
+    """Whether the update loops use the column layout: on XLA:CPU, where it was measured to pay; elsewhere (a GPU)
+    they keep the row layout and batched critics they were measured with."""
+    return jax.default_backend() == "cpu"
 
 
 @jax.custom_vjp

@@ -110,6 +110,24 @@ def test_column_layout_networks_are_the_same_functions_with_the_same_gradients(c
         np.testing.assert_allclose(b, a, rtol=1e-10, atol=1e-12)
 
 
+def test_update_is_the_same_in_both_layouts():
+    """One update (constrained, Stackelberg, sequential actor order) with the column-layout networks (XLA:CPU) and
+    with the row layout (other backends) gives the same new state."""
+    agent = _agent(hidden_sizes=(64, 64, 64), actor_order="sequential")
+    st = agent.init(jax.random.PRNGKey(3))
+    ks = jax.random.split(jax.random.PRNGKey(4), 4)
+    batch = Transition(obs=jax.random.normal(ks[0], (64, 2, D)), action=jax.random.uniform(ks[1], (64, 2, 1)),
+                       reward=jax.random.normal(ks[2], (64, 2)), cost=jax.random.uniform(ks[3], (64, 2)),
+                       next_obs=jax.random.normal(ks[1], (64, 2, D)), terminated=jnp.zeros((64, 2), bool),
+                       truncated=jnp.zeros((64,), bool))
+    out = {}
+    for flag in (True, False):
+        agent.columns = flag
+        out[flag] = jax.jit(agent.update)(st, batch, jax.random.PRNGKey(0))
+    for a, b in zip(jax.tree.leaves(out[True]), jax.tree.leaves(out[False])):
+        np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-6)
+
+
 def test_follower_gradient_through_a2_only_and_no_cross_terms(setup):
     agent, st, obs, lam = setup
     grads = jax.grad(lambda a: jnp.sum(agent.actor_losses(a, st.critics, lam, obs)[0]))(st.actors)

@@ -6,7 +6,7 @@ Two agents, deterministic actors bounded by ``max_action * tanh``:
   ``stackelberg=False`` (plain MADDPG) ``a2 = mu2(o2)``.
 * per agent a centralized reward critic ``Q_i(s, a1, a2)`` and (``constrained=True``) cost critic
   ``G_i(s, a1, a2)``, stacked as ``[2 agents, K kinds]`` (acting and evaluation: batched einsums over the
-  stack; the update: each network alone in the column layout of :mod:`jaxsmarl.columns`, faster on XLA:CPU).
+  stack; the update, on XLA:CPU: each network alone in the column layout of :mod:`jaxsmarl.columns`).
   ``critic_input="joint"``: ``s = [o1, o2]`` (paper: the global state); ``"own"``: ``s = o_i`` (the authors'
   critics, original_code.md §3).
 * Critic targets (Alg. 2, critic / cost-critic updates): ``y_i = r_i + gamma (1 - t_i) Q_i^targ(s', a1', a2')``,
@@ -192,6 +192,7 @@ class MADDPGAgent:
         c = self.config = config
         self.actor = Actor(tuple(c.hidden_sizes), c.action_dim, c.max_action, c.init)
         self.critic = networks.JointActionMLP(hidden=tuple(c.hidden_sizes), init_scheme=c.init)
+        self.columns = columns.enabled()  # the update's networks in the column layout (XLA:CPU)
         self.actor_opt = optax.adam(c.lr_actor)
         self.critic_opt = optax.adam(c.lr_critic)
         self.lagrangian = Lagrangian(tuple(c.cost_threshold), c.lr_lambda, c.lambda_max, c.lambda_init,
@@ -299,7 +300,7 @@ class MADDPGAgent:
         """``[B, 2, K]``: ``(r_i, c_i) + gamma (1 - t_i) (Q_i^targ, G_i^targ)(s', mu^targ(s'))``."""
         c = self.config
         a_next = self.joint_action(state.target_actors, batch.next_obs)
-        boot = self.values(state.target_critics, batch.next_obs, a_next, columns=True)
+        boot = self.values(state.target_critics, batch.next_obs, a_next, columns=self.columns)
         done = batch.terminated
         if not c.bootstrap_on_truncation:
             done = done | batch.truncated[..., None]
@@ -316,11 +317,11 @@ class MADDPGAgent:
         """
         through = self.config.stackelberg if through_follower is None else through_follower
         critics = jax.lax.stop_gradient(critics)
-        a1 = self.leader_action(actors[LEADER], obs[:, LEADER], columns=True)
+        a1 = self.leader_action(actors[LEADER], obs[:, LEADER], columns=self.columns)
         a1_fixed = jax.lax.stop_gradient(a1)
         a2_lead = self.follower_action(jax.lax.stop_gradient(actors[FOLLOWER]), obs[:, FOLLOWER],
-                                       a1 if through else a1_fixed, columns=True)
-        a2_fol = self.follower_action(actors[FOLLOWER], obs[:, FOLLOWER], a1_fixed, columns=True)
+                                       a1 if through else a1_fixed, columns=self.columns)
+        a2_fol = self.follower_action(actors[FOLLOWER], obs[:, FOLLOWER], a1_fixed, columns=self.columns)
         x_lead = self.critic_input(obs, a1, a2_lead)[:, LEADER]
         x_fol = self.critic_input(obs, a1_fixed, a2_fol)[:, FOLLOWER]
         return critic_values_columns(critics, jnp.stack([x_lead, x_fol], axis=1))
@@ -336,7 +337,7 @@ class MADDPGAgent:
 
     def _loss(self, params, state: MADDPGState, batch: Transition, targets: jax.Array):
         critics, actors = params
-        pred = self.values(critics, batch.obs, batch.action, columns=True)
+        pred = self.values(critics, batch.obs, batch.action, columns=self.columns)
         per_net = jnp.mean((pred - jax.lax.stop_gradient(targets)) ** 2, axis=0)  # [2, K]
         actor_loss, v = self.actor_losses(actors, critics, state.lam, batch.obs)
         return jnp.sum(per_net) + jnp.sum(actor_loss), (per_net, jnp.mean(pred, axis=0), actor_loss, v)

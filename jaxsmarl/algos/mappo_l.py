@@ -42,7 +42,7 @@ class MAPPOL(PPOBase):
             o, a, lo, ar, ac, f, m = (x[idx] for x in (obs, action, logp_old, adv_r, adv_c, factor, active))
 
             def loss(p):
-                mean, std = self.policy(p, o, columns=True)
+                mean, std = self.policy(p, o, columns=self.columns)
                 ratio = jnp.exp(pc.gaussian_log_prob(a, mean, std) - lo)
                 adv = ar - lam * ac
                 surr = jnp.minimum(ratio * adv, jnp.clip(ratio, 1.0 - cfg.clip, 1.0 + cfg.clip) * adv)

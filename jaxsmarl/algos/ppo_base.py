@@ -33,6 +33,7 @@ import jax
 import jax.numpy as jnp
 import optax
 
+from jaxsmarl import columns
 from jaxsmarl import ppo_common as pc
 from jaxsmarl.gae import gae
 
@@ -128,6 +129,7 @@ class PPOBase(abc.ABC):
         self.config = cfg = config
         self.actor_net = pc.MLP(cfg.hidden, cfg.layer_n, cfg.action_dim, 0.01, cfg.feature_norm)
         self.critic_net = pc.MLP(cfg.hidden, cfg.layer_n, 1, 1.0, cfg.feature_norm)
+        self.columns = columns.enabled()  # the actor loss and critic steps in the column layout (XLA:CPU)
         self.actor_tx = optax.chain(optax.clip_by_global_norm(cfg.max_grad_norm),
                                     optax.adam(cfg.actor_lr, eps=cfg.adam_eps))
         self.critic_tx = optax.chain(optax.clip_by_global_norm(cfg.max_grad_norm),
@@ -243,20 +245,26 @@ class PPOBase(abc.ABC):
     def critic_step(self, critic_i, opt_i, share, target, old_value, active):
         """One clipped-Huber regression step of agent i's reward and cost critics (separate Adams, grad clips).
 
-        The two critics run one after the other through :func:`pc.mlp_columns` (on XLA:CPU a ``vmap`` over them
-        turns every product into a batched one, which runs slower than two plain ones)."""
+        With ``self.columns`` (XLA:CPU) the two critics run one after the other through :func:`pc.mlp_columns`
+        (a ``vmap`` over them turns every product into a batched one, which runs slower there than two plain
+        ones); otherwise vmapped, in the row layout."""
         cfg = self.config
         share_t = share.T
 
         def one(p, o, tgt, old):
             def loss(p):
-                pred = pc.mlp_columns(p, share_t, cfg.layer_n, cfg.feature_norm)[0]
+                if self.columns:
+                    pred = pc.mlp_columns(p, share_t, cfg.layer_n, cfg.feature_norm)[0]
+                else:
+                    pred = self.critic_net.apply(p, share)[:, 0]
                 return cfg.value_loss_coef * pc.value_loss(pred, old, tgt, active, cfg.value_clip, cfg.huber_delta)
 
             val, grads = jax.value_and_grad(loss)(p)
             upd, o = self.critic_tx.update(grads, o, p)
             return optax.apply_updates(p, upd), o, val
 
+        if not self.columns:
+            return jax.vmap(one)(critic_i, opt_i, target, old_value)
         outs = [one(_index(critic_i, k), _index(opt_i, k), target[k], old_value[k]) for k in range(target.shape[0])]
         return jax.tree.map(lambda *x: jnp.stack(x), *outs)
 
