@@ -52,4 +52,3 @@ linear.defvjp(_linear_fwd, _linear_bwd)
 def dense(params, xt):
     """A flax ``Dense`` (``{"kernel": [in, out], "bias": [out]}``) on column samples: ``[in, B] -> [out, B]``."""
     return linear(params["kernel"], xt) + params["bias"][:, None]
-

@@ -185,5 +185,8 @@ def test_critic_step_and_actor_loss_are_the_same_in_both_layouts():
         agent.columns = flag
         out[flag] = jax.jit(agent.agent_update, static_argnums=1)(st, 0, batch, jnp.ones((n,)),
                                                                   jax.random.PRNGKey(0))
+        jaxpr = str(jax.make_jaxpr(agent.agent_update, static_argnums=1)(st, 0, batch, jnp.ones((n,)),
+                                                                        jax.random.PRNGKey(0)))
+        assert ("custom_vjp" in jaxpr) == flag  # the row layout (GPU) uses no column layer anywhere
     for a, b in zip(jax.tree.leaves(out[True]), jax.tree.leaves(out[False])):
         np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-6)

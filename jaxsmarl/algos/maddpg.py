@@ -324,7 +324,8 @@ class MADDPGAgent:
         a2_fol = self.follower_action(actors[FOLLOWER], obs[:, FOLLOWER], a1_fixed, columns=self.columns)
         x_lead = self.critic_input(obs, a1, a2_lead)[:, LEADER]
         x_fol = self.critic_input(obs, a1_fixed, a2_fol)[:, FOLLOWER]
-        return critic_values_columns(critics, jnp.stack([x_lead, x_fol], axis=1))
+        x = jnp.stack([x_lead, x_fol], axis=1)
+        return critic_values_columns(critics, x) if self.columns else critic_values(critics, x)
 
     def actor_losses(self, actors, critics, lam: jax.Array, obs: jax.Array, through_follower: bool | None = None):
         """``([2] per-agent losses mean_B(-Q_i + pen_i(G_i)), [B, 2, K] values)``; minimising loss i over
