@@ -120,11 +120,9 @@ class MLP(nn.Module):
                         bias_init=nn.initializers.zeros)(x)
 
 
-def _layer_norm_columns(x, p, eps: float = 1e-5):
-    """flax ``LayerNorm`` (fast variance, clipped at 0) over the feature axis 0 of ``x [features, B]``."""
-    mean = jnp.mean(x, axis=0, keepdims=True)
-    var = jnp.maximum(0.0, jnp.mean(jnp.square(x), axis=0, keepdims=True) - jnp.square(mean))
-    return (x - mean) * jax.lax.rsqrt(var + eps) * p["scale"][:, None] + p["bias"][:, None]
+def _layer_norm_columns(x, p):
+    """The MLP's ``LayerNorm`` (flax's, with its parameters ``p``) over the feature axis 0 of ``x [features, B]``."""
+    return nn.LayerNorm(epsilon=1e-5, reduction_axes=0, feature_axes=0).apply({"params": p}, x)
 
 
 def mlp_columns(params, xt, layer_n: int = 1, feature_norm: bool = True):
@@ -135,8 +133,7 @@ def mlp_columns(params, xt, layer_n: int = 1, feature_norm: bool = True):
     """
     p = params["params"]
     x = _layer_norm_columns(xt, p["LayerNorm_0"]) if feature_norm else xt
-    ln = 1 if feature_norm else 0
-
+    ln = 1 if feature_norm else 0  # index of the first hidden LayerNorm
     for j in range(1 + layer_n):
         x = _layer_norm_columns(jax.nn.relu(columns.dense(p[f"Dense_{j}"], x)), p[f"LayerNorm_{ln + j}"])
     return columns.dense(p[f"Dense_{1 + layer_n}"], x)

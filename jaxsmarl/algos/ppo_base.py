@@ -249,7 +249,7 @@ class PPOBase(abc.ABC):
         (a ``vmap`` over them turns every product into a batched one, which runs slower there than two plain
         ones); otherwise vmapped, in the row layout."""
         cfg = self.config
-        share_t = share.T
+        share_t = share.T if self.columns else None
 
         def one(p, o, tgt, old):
             def loss(p):
