@@ -120,23 +120,40 @@ class MLP(nn.Module):
                         bias_init=nn.initializers.zeros)(x)
 
 
-def _layer_norm_columns(x, p):
-    """The MLP's ``LayerNorm`` (flax's, with its parameters ``p``) over the feature axis 0 of ``x [features, B]``."""
-    return nn.LayerNorm(epsilon=1e-5, reduction_axes=0, feature_axes=0).apply({"params": p}, x)
+def _normalize_columns(x, eps: float = 1e-5):
+    """flax ``LayerNorm``'s normalisation (its fast variance ``E[x^2] - E[x]^2``) over the feature axis 0 of
+    ``x [features, B]``, without the scale and offset (:func:`mlp_columns` folds those into the next layer)."""
+    mean = jnp.mean(x, axis=0)
+    var = jnp.maximum(jnp.mean(x * x, axis=0) - mean * mean, 0.0)
+    return (x - mean) * jax.lax.rsqrt(var + eps)
 
 
 def mlp_columns(params, xt, layer_n: int = 1, feature_norm: bool = True):
     """:class:`MLP` on samples stored as columns: ``xt [in, B] -> [out, B]``, with the module's own parameters.
 
     The same function as ``MLP.apply(params, xt.T).T`` with faster reverse-mode gradients on XLA:CPU
-    (:mod:`jaxsmarl.columns`); no forward-mode derivative.
+    (:mod:`jaxsmarl.columns`); no forward-mode derivative. Each LayerNorm's scale ``s`` and offset ``o`` are
+    folded into the dense layer after it: ``W^T (s * xhat + o) + b = (s W)^T xhat + (o W + b)``, so that every
+    sum over the samples of the backward pass (LayerNorm and bias gradients) happens inside the layers' weight
+    and bias products instead of as separate reductions of ``[64, B]`` arrays, and the input LayerNorm, which
+    has no parameter before it, needs no input gradient at all (~20% off a critic's forward + backward pass on
+    512 samples).
     """
     p = params["params"]
-    x = _layer_norm_columns(xt, p["LayerNorm_0"]) if feature_norm else xt
-    ln = 1 if feature_norm else 0  # index of the first hidden LayerNorm
-    for j in range(1 + layer_n):
-        x = _layer_norm_columns(jax.nn.relu(columns.dense(p[f"Dense_{j}"], x)), p[f"LayerNorm_{ln + j}"])
-    return columns.dense(p[f"Dense_{1 + layer_n}"], x)
+    # behind a barrier: else XLA normalises the input in its row layout (it is the transpose of one) and the
+    # first weight gradient becomes a product contracting the first axes, the slow kind (see jaxsmarl.columns)
+    x = jax.lax.optimization_barrier(_normalize_columns(xt) if feature_norm else xt)
+    shift = 0 if feature_norm else 1  # the LayerNorm before Dense_j is LayerNorm_{j - shift}
+    for j in range(2 + layer_n):
+        d = p[f"Dense_{j}"]
+        kernel, bias = d["kernel"], d["bias"]
+        if j >= shift:
+            norm = p[f"LayerNorm_{j - shift}"]
+            kernel, bias = norm["scale"][:, None] * d["kernel"], bias + norm["bias"] @ d["kernel"]
+        h = columns.affine(kernel, bias, x)
+        if j == 1 + layer_n:
+            return h
+        x = _normalize_columns(jax.nn.relu(h))
 
 
 def std_from_param(log_std, x_coef: float, y_coef: float):
