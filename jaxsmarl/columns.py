@@ -20,7 +20,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-__all__ = ["dense", "affine", "enabled"]
+__all__ = ["dense", "affine", "enabled", "in_chunks"]
 
 
 def enabled() -> bool:
@@ -57,3 +57,20 @@ affine.defvjp(_affine_fwd, _affine_bwd)
 def dense(params, xt):
     """A flax ``Dense`` (``{"kernel": [in, out], "bias": [out]}``) on column samples: ``[in, B] -> [out, B]``."""
     return affine(params["kernel"], params["bias"], xt)
+
+
+def in_chunks(fn, *xs, chunk: int = 512):
+    """``fn(*xs)`` for a function of the samples of ``xs`` (arrays ``[B, ...]``, rows independent; outputs
+    ``[B, ...]``), computed on ``chunk`` samples at a time (``lax.map``; the inputs zero-padded to a whole number
+    of chunks).
+
+    For the forward passes over a whole rollout (8192 samples): a network's ``[B, 64]`` intermediates then stay in
+    the core's cache instead of streaming 2 MB arrays through memory, ~3x faster on XLA:CPU."""
+    B = xs[0].shape[0]
+    if B <= chunk:
+        return fn(*xs)
+    n = -(-B // chunk)
+    padded = tuple(jnp.pad(x, ((0, n * chunk - B),) + ((0, 0),) * (x.ndim - 1)).reshape((n, chunk) + x.shape[1:])
+                   for x in xs)
+    out = jax.lax.map(lambda c: fn(*c), padded)
+    return jax.tree.map(lambda y: y.reshape((n * chunk,) + y.shape[2:])[:B], out)

@@ -200,7 +200,18 @@ class PPOBase(abc.ABC):
     def values(self, critic, value_stats, share):
         """Denormalised ``[..., N, 2]`` values of every critic at ``share [..., N*D]``."""
         flat = share.reshape((-1, share.shape[-1]))
-        out = jax.vmap(jax.vmap(lambda p: self.critic_net.apply(p, flat)[:, 0]))(critic)  # [N, 2, B]
+        if self.columns:
+            cfg = self.config
+            n_agents, n_critics = jax.tree.leaves(critic)[0].shape[:2]
+
+            def part(x):  # [chunk, D] -> [chunk, N, 2], the critics one after the other in the column layout
+                return jnp.stack([jnp.stack([pc.mlp_columns(_index(_index(critic, i), k), x.T, cfg.layer_n,
+                                                            cfg.feature_norm)[0] for k in range(n_critics)], -1)
+                                  for i in range(n_agents)], -2)
+
+            out = jnp.moveaxis(columns.in_chunks(part, flat), 0, -1)  # [N, 2, B]
+        else:
+            out = jax.vmap(jax.vmap(lambda p: self.critic_net.apply(p, flat)[:, 0]))(critic)  # [N, 2, B]
         out = jnp.moveaxis(out, -1, 0).reshape(share.shape[:-1] + out.shape[:2])
         return value_stats.denormalize(out) if self.config.value_norm else out
 
@@ -289,7 +300,10 @@ class PPOBase(abc.ABC):
             i, k = x
             st, info = self.agent_update(st, i, batch, factor, k)
             if cfg.sequential:
-                new_logp = self.log_prob(_index(st.actor, i), batch.obs[i], batch.action[i])
+                actor_i = _index(st.actor, i)
+                log_prob = lambda o, a: self.log_prob(actor_i, o, a)
+                new_logp = (columns.in_chunks(log_prob, batch.obs[i], batch.action[i]) if self.columns
+                            else log_prob(batch.obs[i], batch.action[i]))
                 ratio = jnp.where(batch.active[i], jnp.exp(new_logp - batch.logp[i]), 1.0)
                 factor = factor * jax.lax.stop_gradient(ratio)
             return (st, factor), (i, info)
