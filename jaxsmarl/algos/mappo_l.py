@@ -62,13 +62,14 @@ class MAPPOL(PPOBase):
         def epoch(carry, k):
             return jax.lax.scan(minibatch, carry, self.minibatch_indices(k, n, cfg.num_minibatches))
 
-        carry = (ix(state.actor, i), ix(state.actor_opt, i), ix(state.critic, i), ix(state.critic_opt, i),
-                 state.lagrange[i])
+        carry = (ix(state.actor, i), ix(state.actor_opt, i), self.critics_for_loop(ix(state.critic, i)),
+                 self.critics_for_loop(ix(state.critic_opt, i)), state.lagrange[i])
         (actor, a_opt, critic, c_opt, lam), infos = jax.lax.scan(epoch, carry,
                                                                  jax.random.split(key, cfg.ppo_epochs))
         st = self.set_index
         state = state.replace(actor=st(state.actor, i, actor), actor_opt=st(state.actor_opt, i, a_opt),
-                              critic=st(state.critic, i, critic), critic_opt=st(state.critic_opt, i, c_opt),
+                              critic=st(state.critic, i, self.critics_from_loop(critic)),
+                              critic_opt=st(state.critic_opt, i, self.critics_from_loop(c_opt)),
                               lagrange=state.lagrange.at[i].set(lam))
         info = jax.tree.map(lambda x: jnp.mean(x, axis=(0, 1)), infos)
         info["lagrange"] = lam
