@@ -219,3 +219,33 @@ def test_update_is_the_same_in_both_layouts():
         assert ("custom_vjp" in jaxpr) == flag
     for a, b in zip(jax.tree.leaves(out[True]), jax.tree.leaves(out[False])):
         np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-5)
+
+
+def test_flat_parameters_round_trip_and_take_the_same_adam_steps(x64):
+    """ppo_common.to_flat / from_flat: the trees come back bit for bit, and clipped Adam steps on the one-vector
+    form (the CPU minibatch loops) give the tree form's parameters and moments (float64)."""
+    import optax
+
+    from jaxsmarl.ppo_common import from_flat, to_flat
+    net = MLP(16, 1, 2, 1.0, True)
+    params = net.init(jax.random.PRNGKey(0), jnp.zeros((1, 5), jnp.float64))
+    params = jax.tree.map(lambda p: p.astype(jnp.float64), {"net": params, "log_std": jnp.array([0.3, -0.2])})
+    tx = optax.chain(optax.clip_by_global_norm(0.5), optax.adam(1e-2, eps=1e-5))
+    opt = tx.init(params)
+    x = jax.random.normal(jax.random.PRNGKey(1), (7, 5), jnp.float64)
+    loss = lambda p: jnp.sum(net.apply(p["net"], x) ** 2) + jnp.sum(p["log_std"] ** 3)
+
+    def tree_step(params, opt):
+        upd, opt = tx.update(jax.grad(loss)(params), opt, params)
+        return optax.apply_updates(params, upd), opt
+
+    params, opt = tree_step(params, opt)  # non-zero moments to convert
+    flat, fopt = to_flat(params, opt)
+    for a, b in zip(jax.tree.leaves(from_flat(flat, fopt)), jax.tree.leaves((params, opt))):
+        np.testing.assert_array_equal(a, b)
+    for _ in range(3):  # gradient norms ~10: the clip is active
+        params, opt = tree_step(params, opt)
+        fupd, fopt = tx.update(jax.grad(lambda f: loss(f.tree()))(flat), fopt, flat)
+        flat = optax.apply_updates(flat, fupd)
+    for a, b in zip(jax.tree.leaves(from_flat(flat, fopt)), jax.tree.leaves((params, opt))):
+        np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-14)

@@ -90,10 +90,10 @@ class MACPO(PPOBase):
 
         idxs = self.minibatch_indices(key, obs.shape[0], cfg.num_minibatches)
         (actor, critic, c_opt), infos = jax.lax.scan(
-            minibatch, (ix(state.actor, i), self.critics_for_loop(ix(state.critic, i)),
-                        self.critics_for_loop(ix(state.critic_opt, i))), idxs)
+            minibatch, (ix(state.actor, i), *self.critics_for_loop(ix(state.critic, i), ix(state.critic_opt, i))),
+            idxs)
+        critic, c_opt = self.critics_from_loop(critic, c_opt)
         st = self.set_index
-        state = state.replace(actor=st(state.actor, i, actor),
-                              critic=st(state.critic, i, self.critics_from_loop(critic)),
-                              critic_opt=st(state.critic_opt, i, self.critics_from_loop(c_opt)))
+        state = state.replace(actor=st(state.actor, i, actor), critic=st(state.critic, i, critic),
+                              critic_opt=st(state.critic_opt, i, c_opt))
         return state, jax.tree.map(lambda x: jnp.mean(x, axis=0), infos)

@@ -42,7 +42,7 @@ class MAPPOL(PPOBase):
             o, a, lo, ar, ac, f, m = (x[idx] for x in (obs, action, logp_old, adv_r, adv_c, factor, active))
 
             def loss(p):
-                mean, std = self.policy(p, o, columns=self.columns)
+                mean, std = self.policy(p.tree() if self.columns else p, o, columns=self.columns)
                 ratio = jnp.exp(pc.gaussian_log_prob(a, mean, std) - lo)
                 adv = ar - lam * ac
                 surr = jnp.minimum(ratio * adv, jnp.clip(ratio, 1.0 - cfg.clip, 1.0 + cfg.clip) * adv)
@@ -62,14 +62,19 @@ class MAPPOL(PPOBase):
         def epoch(carry, k):
             return jax.lax.scan(minibatch, carry, self.minibatch_indices(k, n, cfg.num_minibatches))
 
-        carry = (ix(state.actor, i), ix(state.actor_opt, i), self.critics_for_loop(ix(state.critic, i)),
-                 self.critics_for_loop(ix(state.critic_opt, i)), state.lagrange[i])
+        actor, a_opt = ix(state.actor, i), ix(state.actor_opt, i)
+        if self.columns:  # one vector per network in the loop (see critics_for_loop)
+            actor, a_opt = pc.to_flat(actor, a_opt)
+        carry = (actor, a_opt, *self.critics_for_loop(ix(state.critic, i), ix(state.critic_opt, i)),
+                 state.lagrange[i])
         (actor, a_opt, critic, c_opt, lam), infos = jax.lax.scan(epoch, carry,
                                                                  jax.random.split(key, cfg.ppo_epochs))
+        if self.columns:
+            actor, a_opt = pc.from_flat(actor, a_opt)
+        critic, c_opt = self.critics_from_loop(critic, c_opt)
         st = self.set_index
         state = state.replace(actor=st(state.actor, i, actor), actor_opt=st(state.actor_opt, i, a_opt),
-                              critic=st(state.critic, i, self.critics_from_loop(critic)),
-                              critic_opt=st(state.critic_opt, i, self.critics_from_loop(c_opt)),
+                              critic=st(state.critic, i, critic), critic_opt=st(state.critic_opt, i, c_opt),
                               lagrange=state.lagrange.at[i].set(lam))
         info = jax.tree.map(lambda x: jnp.mean(x, axis=(0, 1)), infos)
         info["lagrange"] = lam

@@ -265,7 +265,7 @@ class PPOBase(abc.ABC):
         def one(p, o, tgt, old):
             def loss(p):
                 if self.columns:
-                    pred = pc.mlp_columns(p, share_t, cfg.layer_n, cfg.feature_norm)[0]
+                    pred = pc.mlp_columns(p.tree(), share_t, cfg.layer_n, cfg.feature_norm)[0]
                 else:
                     pred = self.critic_net.apply(p, share)[:, 0]
                 return cfg.value_loss_coef * pc.value_loss(pred, old, tgt, active, cfg.value_clip, cfg.huber_delta)
@@ -279,17 +279,23 @@ class PPOBase(abc.ABC):
         outs = [one(critic_i[k], opt_i[k], target[k], old_value[k]) for k in range(len(critic_i))]
         return tuple(o[0] for o in outs), tuple(o[1] for o in outs), jnp.stack([o[2] for o in outs])
 
-    def critics_for_loop(self, tree):
-        """Agent i's stacked ``[2, ...]`` critics (or their optimiser states) in the form :meth:`critic_step`
-        carries through the minibatch loop: with ``self.columns`` a tuple of the two trees (taking each critic
-        out of the stack and stacking the new ones back at every step cost ~5% of the update on XLA:CPU),
-        otherwise the stacked tree itself. :meth:`critics_from_loop` is the inverse."""
+    def critics_for_loop(self, critic, opt):
+        """Agent i's stacked ``[2, ...]`` critics and optimiser states in the form :meth:`critic_step` carries
+        through the minibatch loop: with ``self.columns`` tuples of the two, each as :class:`pc.Flat` vectors
+        (taking each critic out of the stack and stacking the new ones back at every step cost ~5% of the update
+        on XLA:CPU, per-array Adam steps ~5% more), otherwise the stacked trees themselves.
+        :meth:`critics_from_loop` is the inverse."""
         if not self.columns:
-            return tree
-        return tuple(_index(tree, k) for k in range(jax.tree.leaves(tree)[0].shape[0]))
+            return critic, opt
+        pairs = [pc.to_flat(_index(critic, k), _index(opt, k)) for k in range(jax.tree.leaves(critic)[0].shape[0])]
+        return tuple(p for p, _ in pairs), tuple(o for _, o in pairs)
 
-    def critics_from_loop(self, x):
-        return jax.tree.map(lambda *a: jnp.stack(a), *x) if self.columns else x
+    def critics_from_loop(self, critic, opt):
+        if not self.columns:
+            return critic, opt
+        pairs = [pc.from_flat(p, o) for p, o in zip(critic, opt)]
+        stack = lambda *a: jnp.stack(a)
+        return jax.tree.map(stack, *(p for p, _ in pairs)), jax.tree.map(stack, *(o for _, o in pairs))
 
     def log_prob(self, actor_i, obs, action):
         mean, std = self.policy(actor_i, obs)
