@@ -35,7 +35,8 @@ from jax.flatten_util import ravel_pytree
 from jaxsmarl import columns
 
 __all__ = ["MLP", "mlp_columns", "Flat", "to_flat", "from_flat", "random_permutation", "orthogonal_init",
-           "std_from_param", "gaussian_log_prob", "gaussian_entropy", "gaussian_kl", "RunningStats", "huber", "value_loss", "masked_mean", "standardize"]
+           "std_from_param", "gaussian_log_prob", "gaussian_entropy", "gaussian_kl", "RunningStats", "huber",
+           "value_loss", "masked_mean", "standardize"]
 
 
 def random_permutation(key, n: int):
