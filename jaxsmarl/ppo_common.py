@@ -158,11 +158,9 @@ class MLP(nn.Module):
 
 
 def _normalize_columns(x, eps: float = 1e-5):
-    """flax ``LayerNorm``'s normalisation (its fast variance ``E[x^2] - E[x]^2``) over the feature axis 0 of
-    ``x [features, B]``, without the scale and offset (:func:`mlp_columns` folds those into the next layer)."""
-    mean = jnp.mean(x, axis=0)
-    var = jnp.maximum(jnp.mean(x * x, axis=0) - mean * mean, 0.0)
-    return (x - mean) * jax.lax.rsqrt(var + eps)
+    """flax ``LayerNorm``'s normalisation over the feature axis 0 of ``x [features, B]``, without its scale and
+    offset (:func:`mlp_columns` folds those into the next layer)."""
+    return nn.LayerNorm(epsilon=eps, reduction_axes=0, feature_axes=0, use_scale=False, use_bias=False).apply({}, x)
 
 
 def mlp_columns(params, xt, layer_n: int = 1, feature_norm: bool = True):
