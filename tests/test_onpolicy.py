@@ -170,29 +170,6 @@ def test_mlp_columns_is_the_mlp_with_its_gradients(layer_n, feature_norm, x64):
         np.testing.assert_allclose(b, a, rtol=1e-10, atol=1e-12)
 
 
-def test_critic_step_and_actor_loss_are_the_same_in_both_layouts():
-    """MAPPO-L's agent update with the column layout and unrolled critics (XLA:CPU) and with the row layout and
-    vmapped critics (other backends) gives the same new state."""
-    agent = MAPPOL(PPOConfig(num_minibatches=4, ppo_epochs=2))
-    st = agent.init(jax.random.PRNGKey(1))
-    n, k = 256, jax.random.split(jax.random.PRNGKey(2), 6)
-    from jaxsmarl.algos.ppo_base import Batch
-    batch = Batch(obs=jax.random.normal(k[0], (2, n, 8)), share=jax.random.normal(k[1], (n, 16)),
-                  action=jax.random.normal(k[2], (2, n, 1)), logp=-jax.random.uniform(k[3], (2, n)),
-                  adv=jax.random.normal(k[4], (2, 2, n)), target=jax.random.normal(k[5], (2, 2, n)),
-                  old_value=jax.random.normal(k[0], (2, 2, n)), active=jnp.ones((2, n), bool))
-    out = {}
-    for flag in (True, False):
-        agent.columns = flag
-        out[flag] = jax.jit(agent.agent_update, static_argnums=1)(st, 0, batch, jnp.ones((n,)),
-                                                                  jax.random.PRNGKey(0))
-        jaxpr = str(jax.make_jaxpr(agent.agent_update, static_argnums=1)(st, 0, batch, jnp.ones((n,)),
-                                                                        jax.random.PRNGKey(0)))
-        assert ("custom_vjp" in jaxpr) == flag  # the row layout (GPU) uses no column layer anywhere
-    for a, b in zip(jax.tree.leaves(out[True]), jax.tree.leaves(out[False])):
-        np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-6)
-
-
 @pytest.mark.parametrize("B", [7, 16, 37])
 def test_in_chunks_is_the_function_on_all_samples(B):
     """columns.in_chunks: the same rows as the function on the whole batch, also when the batch is not a whole
@@ -205,10 +182,14 @@ def test_in_chunks_is_the_function_on_all_samples(B):
         np.testing.assert_allclose(a, b, rtol=1e-6, atol=1e-6)
 
 
-def test_update_is_the_same_in_both_layouts():
-    """A whole MAPPO-L update (advantage preparation with the critics' values computed chunk by chunk in the
-    column layout, the sequential factor's log-probs likewise, the agents' updates) against the row layout."""
-    agent = MAPPOL(PPOConfig(num_minibatches=2, ppo_epochs=1))
+@pytest.mark.parametrize("algo", ["mappo-l", "macpo"])
+def test_update_is_the_same_in_both_layouts(algo):
+    """A whole update with the column layout (XLA:CPU: advantage preparation with the critics' values computed
+    chunk by chunk, the sequential factor's log-probs likewise, the actor loss and the unrolled critics' steps
+    with each network as one vector) gives the same new state as the row layout with vmapped critics (other
+    backends), which uses no column layer anywhere."""
+    from jaxsmarl.algos.macpo import MACPO
+    agent = (MAPPOL if algo == "mappo-l" else MACPO)(PPOConfig(num_minibatches=4, ppo_epochs=2))
     st = agent.init(jax.random.PRNGKey(1))
     traj = _rollout(40, 30, 1.0, jax.random.PRNGKey(2))  # 1200 samples: 3 chunks of 512, the last one padded
     out = {}
