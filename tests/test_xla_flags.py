@@ -32,8 +32,13 @@ def test_flags_left_out_on_an_older_jaxlib(monkeypatch):
 
 
 def test_a_user_setting_wins(monkeypatch):
-    mine = "--xla_cpu_experimental_ynn_fusion_type="
-    assert _flags_after(monkeypatch, (0, 11, 2), mine) == mine
+    """A flag the user sets keeps the user's value; the other flags are still added."""
+    for f in run.XLA_CPU_FLAGS:
+        name = f.split("=")[0]
+        mine = name + "=mine"
+        flags = _flags_after(monkeypatch, (0, 11, 2), mine).split()
+        assert [x for x in flags if x.startswith(name + "=")] == [mine]
+        assert set(flags) == set(run.XLA_CPU_FLAGS) - {f} | {mine}
 
 
 def test_jaxlib_version_is_parsed():
