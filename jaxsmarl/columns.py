@@ -9,6 +9,10 @@ contracts the last axes of both operands (~as fast as a forward product). :func:
 own reverse-mode rule; it computes exactly ``(x^T @ W)^T``, so networks built on it share their parameters
 (flax ``kernel [in, out]``) with the row-layout modules. It has no forward-mode derivative (``jax.jvp``).
 
+:func:`affine_rows` keeps samples as rows and makes the weight gradient from a transposed copy of the input taken
+on the forward pass: for a vjp evaluated many times at one point (MACPO's Fisher products), where the copy is made
+once.
+
 Measured (2-core CPU): a 3-layer MLP forward + backward on 512 samples ~15% faster on one core; whole training
 runs (``benchmarks/train_onpolicy.py``, ``benchmarks/train_maddpg.py``): racetrack MAPPO-L with 8 seeds ~10% more
 env steps/s, CS-MADDPG with 1 seed ~18% (with 8 seeds, both cores busy, no measurable change; MACPO, whose update
@@ -20,7 +24,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-__all__ = ["dense", "affine", "enabled", "in_chunks"]
+__all__ = ["dense", "affine", "affine_rows", "enabled", "in_chunks"]
 
 
 def enabled() -> bool:
@@ -52,6 +56,28 @@ def _affine_bwd(res, g):
 
 
 affine.defvjp(_affine_fwd, _affine_bwd)
+
+
+@jax.custom_vjp
+def affine_rows(kernel, bias, x):
+    """``x @ kernel + bias`` on samples as rows (``x [B, in]``), whose reverse-mode rule takes the weight gradient
+    from a transposed copy of ``x`` made on the forward pass: ``x^T @ g`` as the row-major ``xt @ g``.
+
+    For a vjp replayed many times at one point (MACPO's Fisher products), where the copy is made once."""
+    return x @ kernel + bias
+
+
+def _affine_rows_fwd(kernel, bias, x):
+    return affine_rows(kernel, bias, x), (kernel, jax.lax.optimization_barrier(x.T))
+
+
+def _affine_rows_bwd(res, g):
+    kernel, xt = res
+    ones = jnp.ones((g.shape[0],), g.dtype)
+    return xt @ g, ones @ g, g @ jax.lax.optimization_barrier(kernel.T)
+
+
+affine_rows.defvjp(_affine_rows_fwd, _affine_rows_bwd)
 
 
 def dense(params, xt):

@@ -29,7 +29,8 @@ def fisher_vector_product(kl_fn: Callable, theta, v, damping: float = 0.1):
     return jax.jvp(jax.grad(kl_fn), (theta,), (v,))[1] + damping * v
 
 
-def gauss_newton_operator(outputs_fn: Callable, out_kl_fn: Callable, theta, damping: float = 0.1) -> Callable:
+def gauss_newton_operator(outputs_fn: Callable, out_kl_fn: Callable, theta, damping: float = 0.1,
+                          reverse_fn: Callable | None = None) -> Callable:
     """``v -> J^T H_out J v + damping * v``: the KL's Hessian in the form ``J`` (Jacobian of the network outputs
     ``outputs_fn(theta)``) then ``H_out`` (Hessian of ``out_kl_fn`` in the outputs, by forward-over-reverse on
     the outputs only) then ``J^T``.
@@ -39,9 +40,12 @@ def gauss_newton_operator(outputs_fn: Callable, out_kl_fn: Callable, theta, damp
     :func:`fisher_vector_product` computes. The network is linearised once (one forward pass shared by all
     products), and a product costs one tangent pass and one backward pass of the network, instead of
     differentiating its backward pass forward-mode.
+
+    ``J^T`` is the transpose of the linearisation, or, with ``reverse_fn`` (the same function of ``theta`` written
+    for a faster reverse mode, e.g. :func:`jaxsmarl.ppo_common.mlp_rows`), its ``jax.vjp`` at ``theta``.
     """
     out, jvp_fn = jax.linearize(outputs_fn, theta)
-    vjp_fn = jax.linear_transpose(jvp_fn, theta)
+    vjp_fn = jax.linear_transpose(jvp_fn, theta) if reverse_fn is None else jax.vjp(reverse_fn, theta)[1]
 
     def hess_out(t):
         return jax.jvp(jax.grad(out_kl_fn), (out,), (t,))[1]

@@ -16,6 +16,8 @@ running normalisers and the critic loss.
 * :func:`value_loss`: clipped value loss with the Huber loss (clip 0.2, delta 10; §2.3 step 4).
 * :func:`random_permutation`: the minibatch shuffle, like ``jax.random.permutation`` but ~3x cheaper on XLA:CPU.
 * :func:`mlp_columns`: :class:`MLP` on column samples (:mod:`jaxsmarl.columns`), for the update's gradients.
+* :func:`mlp_rows`: :class:`MLP` whose reverse mode takes weight gradients from transposed layer inputs
+  (:func:`jaxsmarl.columns.affine_rows`), for MACPO's Fisher products.
 * :class:`Flat`, :func:`to_flat`, :func:`from_flat`: a network's parameters and its optimiser state as single
   vectors for the minibatch loops (one Adam step over one vector instead of one per parameter array).
 """
@@ -34,7 +36,7 @@ from jax.flatten_util import ravel_pytree
 
 from jaxsmarl import columns
 
-__all__ = ["MLP", "mlp_columns", "Flat", "to_flat", "from_flat", "random_permutation", "orthogonal_init",
+__all__ = ["MLP", "mlp_columns", "mlp_rows", "Flat", "to_flat", "from_flat", "random_permutation", "orthogonal_init",
            "std_from_param", "gaussian_log_prob", "gaussian_entropy", "gaussian_kl", "RunningStats", "huber",
            "value_loss", "masked_mean", "standardize"]
 
@@ -189,6 +191,22 @@ def mlp_columns(params, xt, layer_n: int = 1, feature_norm: bool = True):
         if j == 1 + layer_n:
             return h
         x = _normalize_columns(jax.nn.relu(h))
+
+
+def mlp_rows(params, x, layer_n: int = 1, feature_norm: bool = True):
+    """:class:`MLP` with its dense layers as :func:`columns.affine_rows`: the same function of the same
+    parameters, whose reverse mode makes the weight gradients from transposed copies of the layers' inputs taken
+    on the forward pass (for a vjp replayed many times at one point); no forward-mode derivative."""
+    p = params["params"]
+    norm = lambda j, h: nn.LayerNorm(epsilon=1e-5).apply({"params": p[f"LayerNorm_{j}"]}, h)
+    shift = 0 if feature_norm else 1
+    if feature_norm:
+        x = norm(0, x)
+    for j in range(2 + layer_n):
+        x = columns.affine_rows(p[f"Dense_{j}"]["kernel"], p[f"Dense_{j}"]["bias"], x)
+        if j == 1 + layer_n:
+            return x
+        x = norm(j + 1 - shift, jax.nn.relu(x))
 
 
 def std_from_param(log_std, x_coef: float, y_coef: float):

@@ -11,7 +11,7 @@ import pytest
 from jaxsmarl import columns
 from jaxsmarl.algos.mappo_l import MAPPOL, lagrange_step
 from jaxsmarl.algos.ppo_base import PPOConfig
-from jaxsmarl.ppo_common import MLP, mlp_columns, random_permutation
+from jaxsmarl.ppo_common import MLP, mlp_columns, mlp_rows, random_permutation
 from train import __main__ as cli
 from train.config import load_config
 from train.onpolicy import Transition
@@ -147,20 +147,23 @@ def test_random_permutation_rejects_bad_sizes():
             random_permutation(jax.random.PRNGKey(0), n)
 
 
+@pytest.mark.parametrize("layout", ["columns", "rows"])
 @pytest.mark.parametrize("layer_n,feature_norm", [(0, True), (1, True), (2, False)])
-def test_mlp_columns_is_the_mlp_with_its_gradients(layer_n, feature_norm, x64):
-    """The column-layout network (update loops) against the flax module: outputs and every parameter's gradient,
-    float64, with and without the input LayerNorm; also under vmap (seeds on one device)."""
+def test_mlp_columns_and_rows_are_the_mlp_with_its_gradients(layout, layer_n, feature_norm, x64):
+    """The column-layout network (update loops) and the row network with transposed-input weight gradients
+    (MACPO's Fisher products) against the flax module: outputs and every parameter's gradient, float64, with and
+    without the input LayerNorm; also under vmap (seeds on one device)."""
     net = MLP(64, layer_n, 2, 0.01, feature_norm)
     params = net.init(jax.random.PRNGKey(0), jnp.zeros((1, 8), jnp.float64))
     params = jax.tree.map(lambda p: p.astype(jnp.float64) + 0.1 * jax.random.normal(jax.random.PRNGKey(5), p.shape,
                                                                                     jnp.float64), params)
     x = 3.0 * jax.random.normal(jax.random.PRNGKey(1), (200, 8), jnp.float64)
     w = jax.random.normal(jax.random.PRNGKey(2), (200, 2), jnp.float64)
-    np.testing.assert_allclose(mlp_columns(params, x.T, layer_n, feature_norm).T, net.apply(params, x),
-                               rtol=1e-12, atol=1e-12)
+    apply = ((lambda p, x: mlp_columns(p, x.T, layer_n, feature_norm).T) if layout == "columns"
+             else (lambda p, x: mlp_rows(p, x, layer_n, feature_norm)))
+    np.testing.assert_allclose(apply(params, x), net.apply(params, x), rtol=1e-12, atol=1e-12)
     loss_ref = lambda p, x: jnp.sum(w * jnp.tanh(net.apply(p, x)))
-    loss_col = lambda p, x: jnp.sum(w * jnp.tanh(mlp_columns(p, x.T, layer_n, feature_norm).T))
+    loss_col = lambda p, x: jnp.sum(w * jnp.tanh(apply(p, x)))
     for a, b in zip(jax.tree.leaves(jax.grad(loss_ref)(params, x)), jax.tree.leaves(jax.grad(loss_col)(params, x))):
         np.testing.assert_allclose(b, a, rtol=1e-10, atol=1e-12)
     xs = jnp.stack([x, -x])

@@ -8,7 +8,8 @@ For each of ``num_minibatches`` minibatches (one pass, no epochs), agent i:
    (the network and ``log_std``);
 4. ``H^-1 g``, ``H^-1 b`` by conjugate gradient with products by the Hessian of the mean KL at the current
    parameters (damping 0.1), computed as ``J^T H_out J`` (:func:`jaxsmarl.cpo.gauss_newton_operator`: the same
-   matrix, ~35% less MACPO update time than differentiating the KL's gradient forward-mode);
+   matrix, ~35% less MACPO update time than differentiating the KL's gradient forward-mode; on XLA:CPU the
+   ``J^T`` products make their weight gradients from transposed layer inputs, :func:`jaxsmarl.ppo_common.mlp_rows`);
 5. the CPO direction (:func:`jaxsmarl.cpo.cpo_direction`);
 6. the line search (:func:`jaxsmarl.cpo.line_search`): accept a candidate if ``KL < delta``, the reward loss
    improved (only when ``optim_case > 1``) and the cost surrogate grew by at most ``max(-c, 0)``.
@@ -35,13 +36,23 @@ class MACPO(PPOBase):
 
         policy_at = lambda th: self.policy(unravel(th), o)  # (mean [B, k], std [k])
 
+        def policy_rev(th):
+            """``policy_at`` for reverse mode only; on XLA:CPU (``self.columns``) with the weight gradients
+            taken from transposed layer inputs made once per step (:func:`pc.mlp_rows`): the gradients below
+            and the ``J^T`` of the 20 Fisher products (:func:`cpo.gauss_newton_operator`)."""
+            if not self.columns:
+                return policy_at(th)
+            act = unravel(th)
+            return (pc.mlp_rows(act["net"], o, cfg.layer_n, cfg.feature_norm),
+                    pc.std_from_param(act["log_std"], cfg.std_x_coef, cfg.std_y_coef))
+
         def surrogates_of(out):
             mean, std = out
             ratio = jnp.exp(pc.gaussian_log_prob(a, mean, std) - lo)
             return -pc.masked_mean(ratio * f * ar, m), pc.masked_mean(ratio * f * ac, m)
 
         # both gradients from one forward pass
-        (reward_loss, cost_loss), pullback = jax.vjp(lambda th: surrogates_of(policy_at(th)), theta)
+        (reward_loss, cost_loss), pullback = jax.vjp(lambda th: surrogates_of(policy_rev(th)), theta)
         one, zero = jnp.ones_like(reward_loss), jnp.zeros_like(reward_loss)
         (g,), (b,) = pullback((one, zero)), pullback((zero, one))
         mean_old, std_old = jax.lax.stop_gradient(policy_at(theta))
@@ -51,7 +62,7 @@ class MACPO(PPOBase):
             return pc.masked_mean(pc.gaussian_kl(mean_old, std_old, mean, jnp.broadcast_to(std, mean.shape)), m)
 
         # the KL's Hessian at theta, J^T H_out J (the Fisher matrix; see cpo.gauss_newton_operator)
-        fvp = cpo.gauss_newton_operator(policy_at, kl_of, theta, cfg.fvp_damping)
+        fvp = cpo.gauss_newton_operator(policy_at, kl_of, theta, cfg.fvp_damping, reverse_fn=policy_rev)
         hinv_g = cpo.conjugate_gradient(fvp, g, cfg.cg_iters)
         hinv_b = cpo.conjugate_gradient(fvp, b, cfg.cg_iters)
         c = (jc - cfg.cost_limit) * (1.0 - cfg.gamma)
