@@ -45,8 +45,8 @@ __all__ = ["run", "restore_run", "evaluate_checkpoint", "use_all_cpu_cores", "se
 # pairs, -3% to +9%), merge CSQ with one seed +10-20%. The order of the kernels changes, not what they compute.
 XLA_CPU_FLAGS = ("--xla_cpu_experimental_ynn_fusion_type=-reduce",
                  "--xla_cpu_enable_concurrency_optimized_scheduler=false")
-# The first jaxlib that knows the flag (YNNPACK fusions are on by default from 0.10.2); an older XLA aborts the
-# process on an unknown XLA_FLAGS entry, and has no YNNPACK fusions to turn off.
+# The first jaxlib that knows both flags (the YNNPACK one is the newer; its fusions are on by default from 0.10.2);
+# an older XLA aborts the process on an unknown XLA_FLAGS entry, and has no YNNPACK fusions to turn off.
 XLA_CPU_FLAGS_SINCE = (0, 10, 1)
 
 
