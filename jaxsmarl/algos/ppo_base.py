@@ -203,11 +203,11 @@ class PPOBase(abc.ABC):
         if self.columns:
             cfg = self.config
             n_agents, n_critics = jax.tree.leaves(critic)[0].shape[:2]
+            nets = [[_index(_index(critic, i), k) for k in range(n_critics)] for i in range(n_agents)]
 
             def part(x):  # [chunk, D] -> [chunk, N, 2], the critics one after the other in the column layout
-                return jnp.stack([jnp.stack([pc.mlp_columns(_index(_index(critic, i), k), x.T, cfg.layer_n,
-                                                            cfg.feature_norm)[0] for k in range(n_critics)], -1)
-                                  for i in range(n_agents)], -2)
+                return jnp.stack([jnp.stack([pc.mlp_columns(net, x.T, cfg.layer_n, cfg.feature_norm)[0]
+                                             for net in row], -1) for row in nets], -2)
 
             out = jnp.moveaxis(columns.in_chunks(part, flat), 0, -1)  # [N, 2, B]
         else:
