@@ -11,7 +11,7 @@ import json
 import os
 import sys
 
-from train.config import ALGOS, COMMON, COMMON_HELP, SCENARIOS, load_config, read_run_config
+from train.config import ALGOS, COMMON, COMMON_HELP, SCENARIOS, load_config, preset_values, read_run_config
 
 
 def _keys_help() -> str:
@@ -28,6 +28,19 @@ def _keys_help() -> str:
     return "\n".join(lines)
 
 
+def _presets_help() -> str:
+    """What each ``--preset`` sets, per group of algorithms sharing the same values."""
+    groups: dict[str, list[str]] = {}
+    for name, sp in ALGOS.items():
+        for preset, values in sp.presets.items():
+            text = " ".join(f"{k}={json.dumps(v)}" for k, v in values.items())
+            groups.setdefault(f"{preset}: {text}", []).append(name)
+    if not groups:
+        return "  (none)"
+    return "\n".join(f"  --preset {what.split(':')[0]} for {', '.join(algos)}:{what.split(':', 1)[1]}"
+                     for what, algos in groups.items())
+
+
 def _algos_help() -> str:
     return "; ".join(f"{n} = {sp.summary} [{sp.action}]" for n, sp in ALGOS.items())
 
@@ -40,8 +53,12 @@ examples:
                                                         # exactly as a 4194304-step run would have
   python -m train --eval-only runs/m --eval-episodes 20  # greedy evaluation of a saved run
   python -m train --set leader_rule=authors --set infeasible=argmax   # the authors' action rule
+  python -m train --scenario racetrack --algo cs-maddpg --preset authors   # every coded option of theirs
 
-configuration: defaults <- train/configs/<scenario>_<algo>.json <- --config FILE <- options and --set.
+configuration: defaults <- train/configs/<scenario>_<algo>.json <- --config FILE <- --preset <- options and --set.
+presets (the authors' coded options, docs/algorithms.md):
+""" + _presets_help() + """
+
 --set accepts the common keys and those of the chosen algorithm (value in JSON syntax; plain words are taken
 as strings):
 """ + _keys_help()
@@ -63,6 +80,9 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--config", default=None, help="JSON file replacing train/configs/<scenario>_<algo>.json")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="override any configuration key (repeatable), e.g. --set lr=3e-4 --set cost_threshold=[2,2]")
+    p.add_argument("--preset", default=None, metavar="NAME",
+                   help="a named set of values applied after the config file and before --set; 'authors' turns on "
+                        "every coded option of the authors' implementation (listed below)")
     p.add_argument("--chunk-steps", type=int, default=None,
                    help="environment steps per compiled chunk between host logging (default 1000)")
     p.add_argument("--checkpoint-every", type=int, default=None,
@@ -106,9 +126,11 @@ def build_config(args: argparse.Namespace) -> dict:
         if os.path.exists(os.path.join(args.out, "config.json")):
             # continue with the saved configuration; explicit options must agree
             base = read_run_config(args.out)
+            if args.preset is not None:
+                base.update(preset_values(args.algo or base["algo"], args.preset))
             base.update(overrides)
             return load_config(args.scenario or base["scenario"], args.algo or base["algo"], base)
-    return load_config(args.scenario, args.algo, overrides, config_file=args.config)
+    return load_config(args.scenario, args.algo, overrides, config_file=args.config, preset=args.preset)
 
 
 def main(argv=None) -> int:

@@ -22,9 +22,14 @@ from typing import Any, Callable
 
 __all__ = ["COMMON", "COMMON_HELP", "AlgoSpec", "ALGOS", "SCENARIOS", "CONFIG_DIR", "DEFAULTS", "HELP",
            "register", "spec", "defaults_for", "help_for", "load_config", "read_run_config", "validate", "config_path",
+           "preset_values", "LEGACY", "MATMUL_PRECISIONS", "TERMINAL_MASKS",
            "Int", "Num", "Choice", "Bool", "PerAgent", "Sizes"]
 
 CONFIG_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), "configs")
+
+# The off-policy learners' `terminal_mask` choices: jaxsmarl.bootstrap.TERMINAL_MASKS, restated here so that
+# this module needs no JAX (tests keep the two equal).
+TERMINAL_MASKS = ("sample", "batch_mean")
 
 # Known scenarios and their action type (checked again against the env when it is built).
 SCENARIOS = {"merge": "discrete", "roundabout": "discrete", "intersection": "continuous", "racetrack": "continuous"}
@@ -40,7 +45,14 @@ COMMON: dict[str, Any] = {
     "checkpoint_every": 5000,
     "eval_episodes": 10,
     "eval_max_steps": 200,
+    "matmul_precision": "highest",
 }
+
+# The value a key had before it existed, for run folders saved without it (read_run_config): the behaviour those
+# runs were trained with. Keys not listed here kept their behaviour under today's default.
+LEGACY: dict[str, Any] = {"matmul_precision": "default"}
+
+MATMUL_PRECISIONS = ("highest", "high", "default")
 
 COMMON_HELP: dict[str, str] = {
     "scenario": "driving scenario: merge | roundabout (discrete actions); intersection | racetrack (continuous)",
@@ -53,6 +65,8 @@ COMMON_HELP: dict[str, str] = {
     "checkpoint_every": "environment steps between checkpoints (a multiple of chunk_steps; 0 = only at the end)",
     "eval_episodes": "greedy evaluation episodes per seed after training (0 = skip)",
     "eval_max_steps": "step cap of one evaluation episode",
+    "matmul_precision": "float32 matrix products in the training programs: highest (full float32 on every "
+                        "backend) | high | default (the backend's own: TF32 or bf16 passes on GPUs and TPUs)",
 }
 
 
@@ -138,6 +152,7 @@ class Sizes:
 COMMON_RULES: dict[str, Callable] = {
     "total_steps": Int(1), "num_seeds": Int(1), "seed": Int(0), "num_envs": Int(1), "chunk_steps": Int(1),
     "checkpoint_every": Int(0), "eval_episodes": Int(0), "eval_max_steps": Int(1),
+    "matmul_precision": Choice(MATMUL_PRECISIONS),
 }
 
 
@@ -150,7 +165,8 @@ class AlgoSpec:
 
     ``defaults``/``help``: its own keys (besides :data:`COMMON`); ``rules``: key -> rule (keys without a rule are
     taken as they are); ``check(cfg)``: cross-key checks on the normalised config, raising ValueError;
-    ``make_train(config, env) -> train.loop.Trainer``: builds the compiled trainer (imports JAX lazily).
+    ``make_train(config, env) -> train.loop.Trainer``: builds the compiled trainer (imports JAX lazily);
+    ``presets``: name -> values that ``--preset NAME`` sets (after the JSON file, before ``--set``).
     """
 
     name: str
@@ -161,6 +177,7 @@ class AlgoSpec:
     rules: dict
     make_train: Callable
     check: Callable | None = None
+    presets: dict = dataclasses.field(default_factory=dict)
 
     def __post_init__(self):
         if self.action not in ("discrete", "continuous"):
@@ -171,6 +188,10 @@ class AlgoSpec:
         clash = [k for k in self.defaults if k in COMMON]
         if clash:
             raise ValueError(f"AlgoSpec {self.name}: keys {clash} are common keys")
+        for name, values in self.presets.items():
+            unknown = [k for k in values if k not in self.defaults]
+            if unknown:
+                raise ValueError(f"AlgoSpec {self.name}: preset {name!r} sets unknown keys {unknown}")
 
 
 ALGOS: dict[str, AlgoSpec] = {}
@@ -253,12 +274,24 @@ def read_run_config(run_dir: str) -> dict:
     saved = load_json(path)
     if saved.get("algo") not in ALGOS:
         raise ValueError(f"{path}: 'algo' is {saved.get('algo')!r}; a run's algorithm is one of {', '.join(ALGOS)}")
-    return {**defaults_for(saved["algo"]), **saved}
+    return {**defaults_for(saved["algo"]), **LEGACY, **saved}
+
+
+def preset_values(algo: str, preset: str) -> dict:
+    """The values ``--preset preset`` sets for ``algo``; ValueError naming the presets it has."""
+    presets = spec(algo).presets
+    if preset not in presets:
+        have = ", ".join(presets) or "none"
+        with_it = [a for a, sp in ALGOS.items() if preset in sp.presets]
+        hint = f" ('{preset}' is a preset of {', '.join(with_it)})" if with_it else ""
+        raise ValueError(f"algorithm '{algo}' has no preset '{preset}'; its presets: {have}{hint}")
+    return dict(presets[preset])
 
 
 def load_config(scenario: str | None = None, algo: str | None = None, overrides: dict | None = None,
-                config_file: str | None = None) -> dict:
-    """Defaults <- ``configs/<scenario>_<algo>.json`` (or ``config_file``) <- ``overrides``; validated."""
+                config_file: str | None = None, preset: str | None = None) -> dict:
+    """Defaults <- ``configs/<scenario>_<algo>.json`` (or ``config_file``) <- ``preset`` <- ``overrides``;
+    validated."""
     overrides = dict(overrides or {})
     scenario = scenario or overrides.get("scenario") or COMMON["scenario"]
     algo = algo or overrides.get("algo") or COMMON["algo"]
@@ -278,6 +311,8 @@ def load_config(scenario: str | None = None, algo: str | None = None, overrides:
             if k not in valid:
                 raise _unknown_key(k, path, algo)
         cfg.update(data)
+    if preset is not None:
+        cfg.update(preset_values(algo, preset))
     cfg.update(overrides)
     cfg["scenario"], cfg["algo"] = scenario, algo
     return validate(cfg)

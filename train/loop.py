@@ -8,7 +8,9 @@
   One iteration steps every one of the ``num_envs`` environments once. ``metrics["episode"]`` holds
   :func:`jaxsmarl.metrics.episode_record` s shaped ``[chunk_iters, num_envs]``; ``metrics["explore"]``
   (optional, ``[chunk_iters, k]``) the exploration parameters shown in the progress line; ``metrics["update"]``
-  (optional) the learner's diagnostics. ``start_iter`` is unbatched (``in_axes=None``).
+  (optional) the learner's diagnostics, ``[updates, ...]``, and ``metrics["updated"]`` (optional, bool
+  ``[updates]``) which of those entries are real updates (the off-policy warm-up records zeros).
+  ``start_iter`` is unbatched (``in_axes=None``).
 * ``train(key) -> (state, metrics)``: ``init`` + every chunk, one pure function: ``jit(vmap(train))(keys)``.
 * ``evaluate(agent_state, key) -> records``: ``eval_episodes`` greedy episodes (vmapped); see :func:`make_evaluate`.
 
@@ -27,6 +29,7 @@ info)``, ``transition_example()`` and ``Transition``; the config provides ``warm
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import Any, Callable, NamedTuple
 
@@ -37,7 +40,7 @@ import jax.numpy as jnp
 from jaxsmarl import buffers, metrics
 
 __all__ = ["RunnerState", "Trainer", "make_env", "make_train", "make_offpolicy_train", "make_evaluate",
-           "make_train_fn", "seed_keys", "episode_step_limit"]
+           "make_train_fn", "seed_keys", "episode_step_limit", "with_matmul_precision"]
 
 
 @flax.struct.dataclass
@@ -83,10 +86,32 @@ def seed_keys(config: dict) -> jax.Array:
 
 
 def make_train(config: dict, env=None) -> Trainer:
-    """The trainer of ``config["algo"]``. ``env``: optional ``(env, wrapped_env, params)``."""
-    from train.config import spec
+    """The trainer of ``config["algo"]``, its programs traced at ``config["matmul_precision"]`` (full float32
+    matrix products by default on every backend). ``env``: optional ``(env, wrapped_env, params)``."""
+    from train.config import COMMON, spec
 
-    return spec(config["algo"]).make_train(config, env)
+    trainer = spec(config["algo"]).make_train(config, env)
+    return with_matmul_precision(trainer, config.get("matmul_precision", COMMON["matmul_precision"]))
+
+
+def with_matmul_precision(trainer: Trainer, precision: str) -> Trainer:
+    """``trainer`` whose functions trace their matrix products at ``precision`` (``jax.default_matmul_precision``
+    is read when an operation is traced, so the setting travels into every program built from them)."""
+
+    def wrap(fn):
+        if fn is None:
+            return None
+
+        @functools.wraps(fn)
+        def traced_at_precision(*args, **kwargs):
+            with jax.default_matmul_precision(precision):
+                return fn(*args, **kwargs)
+
+        return traced_at_precision
+
+    return trainer._replace(init=wrap(trainer.init), run_chunk=wrap(trainer.run_chunk),
+                            run_tail=wrap(trainer.run_tail), train=wrap(trainer.train),
+                            evaluate=wrap(trainer.evaluate))
 
 
 def make_train_fn(init: Callable, run_chunk: Callable, run_tail: Callable | None, n_full: int,
@@ -201,7 +226,8 @@ def make_offpolicy_train(config: dict, env, agent) -> Trainer:
             return agent_state, _update_info_zeros()
 
         agent_state, upd = jax.lax.cond((t + 1) * E >= warmup, learn, skip, rs.agent)
-        out = {"episode": metrics.episode_record(info), "explore": eps, "update": upd}
+        out = {"episode": metrics.episode_record(info), "explore": eps, "update": upd,
+               "updated": (t + 1) * E >= warmup}
         return RunnerState(agent=agent_state, buffer=buf, env_state=env_state, obs=obs, key=key,
                            iteration=rs.iteration + 1), out
 

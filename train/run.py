@@ -5,6 +5,7 @@ Run folder layout (``--out``)::
     config.json       the resolved configuration
     episodes.csv      one row per finished training episode and seed (jaxsmarl.metrics.EPISODE_FIELDS)
     summary.json      first/last-10% statistics with 95% bootstrap CIs across seeds, timing, evaluation
+    learner.csv       per chunk, seed and agent: the Lagrange multiplier and cost estimate (jaxsmarl.learner_log)
     eval.csv          greedy evaluation episodes per seed (if eval_episodes > 0)
     checkpoints/<env steps>/   orbax checkpoints of the whole training state (all seeds)
 
@@ -27,6 +28,7 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from jaxsmarl import metrics
+from jaxsmarl.learner_log import LearnerLog, chunk_rows
 from jaxsmarl.checkpoints import Checkpointer
 from train.loop import make_train, seed_keys
 from train.config import read_run_config
@@ -252,9 +254,11 @@ def run(config: dict, out: str, *, resume: bool = False, overwrite: bool = False
 
     ckpt = Checkpointer(os.path.join(out, "checkpoints"), max_to_keep=2)
     csv_path = os.path.join(out, "episodes.csv")
+    learner_path = os.path.join(out, "learner.csv")
     state = prog["init"](seed_keys(config))
     done_chunks = 0
     log = metrics.EpisodeLog(S)
+    learner = LearnerLog()
     prev = {"train_s_total": 0.0, "compile_s_total": 0.0, "segments": 0}  # earlier segments of a resumed run
     if resume:
         if saved_cfg["total_steps"] != config["total_steps"]:
@@ -269,6 +273,8 @@ def run(config: dict, out: str, *, resume: bool = False, overwrite: bool = False
         if os.path.exists(csv_path):
             log = metrics.EpisodeLog.read_csv(csv_path, S)
         log.truncate(int(meta["env_steps"]))  # episodes logged after the checkpoint are replayed
+        learner = LearnerLog.read_csv(learner_path)
+        learner.truncate(int(meta["env_steps"]))
         if verbose:
             _print(f"{name}: resumed from {out}/checkpoints at {meta['env_steps']} env steps", False)
     metrics.write_json(cfg_path, config)  # after the resume checks: a refused resume leaves the saved run as it was
@@ -301,6 +307,8 @@ def run(config: dict, out: str, *, resume: bool = False, overwrite: bool = False
         n_run += 1
         new = log.add_steps(m["episode"], start_iter, E)
         env_steps = (start_iter + n_iter) * E
+        if "update" in m:
+            learner.add(chunk_rows(m["update"], env_steps, m.get("updated")))
         last_meta = {"chunks_done": c + 1, "env_steps": env_steps,
                      "train_s_total": prev["train_s_total"] + train_s,
                      "compile_s_total": prev["compile_s_total"] + compile_s, "segments": prev["segments"] + 1}
@@ -309,6 +317,7 @@ def run(config: dict, out: str, *, resume: bool = False, overwrite: bool = False
                 max_chunks is not None and n_run >= max_chunks):
             ckpt.save(env_steps, state, last_meta)
             log.write_csv(csv_path)
+            learner.write_csv(learner_path)
         if verbose:
             recent = [r for r in log.rows if r["end_step"] > env_steps - config["chunk_steps"]]
             sps = steps_run / max(train_s, 1e-9)
@@ -320,6 +329,7 @@ def run(config: dict, out: str, *, resume: bool = False, overwrite: bool = False
     chunks_done = last_meta.get("chunks_done", done_chunks)
     finished = chunks_done == trainer.n_chunks
     log.write_csv(csv_path)
+    learner.write_csv(learner_path)
 
     timing = {"setup_s": setup_s, "compile_s": compile_s, "train_s": train_s, "env_steps_run": steps_run,
               "env_steps_per_s_per_seed": steps_run / max(train_s, 1e-9),
@@ -332,6 +342,8 @@ def run(config: dict, out: str, *, resume: bool = False, overwrite: bool = False
         with open(summary_path) as f:
             timing = json.load(f).get("timing", timing)
     summary = {"config": config, "summary": metrics.summarize(log), "finished": finished, "timing": timing}
+    if learner.rows:
+        summary["learner"] = learner.summary()
     if finished and config["eval_episodes"] > 0:
         ev = evaluate_state(trainer, state, config, prog["evaluate"])
         summary["eval"] = ev["summary"]

@@ -17,7 +17,8 @@ elementwise, so this equals one optimizer per critic as the authors had).
 
 Options reproducing the authors' code (original_code.md §4): ``leader_rule="authors"``, ``infeasible="argmax"``,
 ``td_action_state="current"`` + ``td_action_noise=True`` (their target actions come from s with exploration),
-``bootstrap_on_truncation=False`` (their t_i includes the time limit).
+``bootstrap_on_truncation=False`` (their t_i includes the time limit), ``terminal_mask="batch_mean"`` (their
+targets bootstrap every transition with the discount scaled by the batch's done fraction, :mod:`jaxsmarl.bootstrap`).
 """
 
 from __future__ import annotations
@@ -30,7 +31,7 @@ import jax
 import jax.numpy as jnp
 import optax
 
-from jaxsmarl import networks
+from jaxsmarl import bootstrap, networks
 from jaxsmarl.stackelberg import stackelberg_equilibrium
 
 __all__ = ["CSQConfig", "CSQState", "CSQAgent"]
@@ -62,6 +63,12 @@ class CSQConfig:
     td_action_noise: bool = False  # authors: epsilon-greedy target actions
     td_equilibrium_net: str = "online"  # critics used to solve p14 for the targets: "online" (p14) or "target"
     bootstrap_on_truncation: bool = True  # False: the time limit also stops bootstrapping (authors)
+    terminal_mask: str = "sample"  # or "batch_mean": the authors' effective rule (jaxsmarl.bootstrap)
+
+    def __post_init__(self):
+        if self.terminal_mask not in bootstrap.TERMINAL_MASKS:
+            raise ValueError(f"terminal_mask must be one of {', '.join(bootstrap.TERMINAL_MASKS)}, "
+                             f"got {self.terminal_mask!r}")
 
     @property
     def n_agents(self) -> int:
@@ -214,11 +221,9 @@ class CSQAgent:
         else:
             a_next = self.solve_equilibrium(eq_params, eq_obs)
         boot = networks.values_at(state.target_params, batch.next_obs, a_next, c.num_actions)
-        done = batch.terminated
-        if not c.bootstrap_on_truncation:
-            done = done | batch.truncated[..., None]
+        keep = bootstrap.continuation(batch.terminated, batch.truncated, c.terminal_mask, c.bootstrap_on_truncation)
         rc = jnp.stack([batch.reward, batch.cost], axis=-1)  # [B, n, 2]
-        return rc + c.gamma * (1.0 - done.astype(jnp.float32))[..., None] * boot
+        return rc + c.gamma * keep[..., None] * boot
 
     def loss(self, params, batch: Transition, targets: jax.Array):
         pred = networks.values_at(params, batch.obs, batch.action, self.config.num_actions)

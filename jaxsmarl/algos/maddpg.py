@@ -28,7 +28,9 @@ Two agents, deterministic actors bounded by ``max_action * tanh``:
 Differences to the authors' code, as options: ``lambda_rule="authors"`` (non-decreasing lambda and hinge
 penalty), ``critic_input="own"``, ``bootstrap_on_truncation=False``, ``actor_order="sequential"`` (their
 ``leader.train()`` runs before ``follower.train()``, so the follower's actor loss and multiplier see the leader
-actor after its step; by default both actors step from the same parameters, as Algorithm 2 reads).
+actor after its step; by default both actors step from the same parameters, as Algorithm 2 reads),
+``terminal_mask="batch_mean"`` (their targets bootstrap every transition with the discount scaled by the
+batch's done fraction, :mod:`jaxsmarl.bootstrap`).
 """
 
 from __future__ import annotations
@@ -43,7 +45,7 @@ import jax
 import jax.numpy as jnp
 import optax
 
-from jaxsmarl import columns, networks
+from jaxsmarl import bootstrap, columns, networks
 from jaxsmarl.lagrangian import Lagrangian
 from jaxsmarl.networks import _Dense
 
@@ -83,12 +85,16 @@ class MADDPGConfig:
     explore_decay: float = 5e-7  # per environment step, both schedules
     bootstrap_on_truncation: bool = True
     actor_order: str = "simultaneous"  # or "sequential": the follower's actor step sees the stepped leader actor
+    terminal_mask: str = "sample"  # or "batch_mean": the authors' effective rule (jaxsmarl.bootstrap)
 
     def __post_init__(self):
         if self.critic_input not in ("joint", "own"):
             raise ValueError(f"critic_input must be 'joint' or 'own', got {self.critic_input!r}")
         if self.init not in ("torch", "lecun"):
             raise ValueError(f"init must be 'torch' or 'lecun', got {self.init!r}")
+        if self.terminal_mask not in bootstrap.TERMINAL_MASKS:
+            raise ValueError(f"terminal_mask must be one of {', '.join(bootstrap.TERMINAL_MASKS)}, "
+                             f"got {self.terminal_mask!r}")
         for name in ("cost_threshold", "noise_start", "noise_min", "eps_start", "eps_min"):
             if len(getattr(self, name)) != 2:
                 raise ValueError(f"{name} needs one value per agent [leader, follower], got {getattr(self, name)}")
@@ -301,11 +307,10 @@ class MADDPGAgent:
         c = self.config
         a_next = self.joint_action(state.target_actors, batch.next_obs)
         boot = self.values(state.target_critics, batch.next_obs, a_next, columns=self.columns)
-        done = batch.terminated
-        if not c.bootstrap_on_truncation:
-            done = done | batch.truncated[..., None]
         rc = jnp.stack([batch.reward, batch.cost][: c.n_kinds], axis=-1)
-        return rc + c.gamma * (1.0 - done.astype(rc.dtype))[..., None] * boot
+        keep = bootstrap.continuation(batch.terminated, batch.truncated, c.terminal_mask, c.bootstrap_on_truncation,
+                                      rc.dtype)
+        return rc + c.gamma * keep[..., None] * boot
 
     def actor_values(self, actors, critics, obs: jax.Array, through_follower: bool | None = None) -> jax.Array:
         """Each agent's critics at the current actors' actions, wired for the actor gradients: ``[B, 2, K]``.

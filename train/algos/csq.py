@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import math
 
-from train.config import AlgoSpec, Bool, Choice, Int, Num, PerAgent, Sizes, register
+from train.config import TERMINAL_MASKS, AlgoSpec, Bool, Choice, Int, Num, PerAgent, Sizes, register
 
 DEFAULTS = {
     "updates_per_step": 1,
@@ -32,6 +32,17 @@ DEFAULTS = {
     "td_action_noise": False,
     "td_equilibrium_net": "online",
     "bootstrap_on_truncation": True,
+    "terminal_mask": "sample",
+}
+
+# Every coded option of the authors' CSQ at once (`--preset authors`, docs/algorithms.md).
+AUTHORS_PRESET = {
+    "leader_rule": "authors",
+    "infeasible": "argmax",
+    "td_action_state": "current",
+    "td_action_noise": True,
+    "bootstrap_on_truncation": False,
+    "terminal_mask": "batch_mean",
 }
 
 HELP = {
@@ -59,6 +70,9 @@ HELP = {
     "td_equilibrium_net": "critics used to solve for the target actions: online (p14) | target",
     "bootstrap_on_truncation": "true: only an agent's own termination stops bootstrapping (paper); false: the time "
                                "limit does too (authors)",
+    "terminal_mask": "which transitions bootstrap: sample (each transition's own terminal flag) | batch_mean (the "
+                     "authors' effective rule: every transition bootstraps, discount scaled by the batch's done "
+                     "fraction)",
 }
 
 PROB = PerAgent(Num(0.0, 1.0, hint="values are probabilities and must lie in [0, 1]"))
@@ -70,7 +84,7 @@ RULES = {
     "hidden_sizes": Sizes(), "init": Choice(("torch", "lecun")), "leader_rule": Choice(("stackelberg", "authors")),
     "infeasible": Choice(("min_cost", "argmax")), "tie_break": Choice((None, "first", "last")),
     "td_action_state": Choice(("next", "current")), "td_equilibrium_net": Choice(("online", "target")),
-    "td_action_noise": Bool(), "bootstrap_on_truncation": Bool(),
+    "td_action_noise": Bool(), "bootstrap_on_truncation": Bool(), "terminal_mask": Choice(TERMINAL_MASKS),
 }
 
 
@@ -96,7 +110,7 @@ def make_agent(config: dict, env):
         leader_rule=config["leader_rule"], infeasible=config["infeasible"], tie_break=config["tie_break"],
         td_action_state=config["td_action_state"], td_action_noise=config["td_action_noise"],
         td_equilibrium_net=config["td_equilibrium_net"],
-        bootstrap_on_truncation=config["bootstrap_on_truncation"],
+        bootstrap_on_truncation=config["bootstrap_on_truncation"], terminal_mask=config["terminal_mask"],
     ))
 
 
@@ -109,7 +123,7 @@ def make_train(config: dict, env=None):
 
 register(
     AlgoSpec("csq", "discrete", "constrained Stackelberg Q-learning (paper Algorithm 1)", DEFAULTS, HELP, RULES,
-             make_train, check),
+             make_train, check, presets={"authors": AUTHORS_PRESET}),
     AlgoSpec("sq", "discrete", "Stackelberg Q-learning: CSQ with threshold d=100 (the paper's discrete 'Bi-AC')",
-             DEFAULTS, HELP, RULES, make_train, check),
+             DEFAULTS, HELP, RULES, make_train, check, presets={"authors": AUTHORS_PRESET}),
 )

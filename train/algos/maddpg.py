@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import math
 
-from train.config import AlgoSpec, Bool, Choice, Int, Num, PerAgent, Sizes, register
+from train.config import TERMINAL_MASKS, AlgoSpec, Bool, Choice, Int, Num, PerAgent, Sizes, register
 
 _COMMON_DEFAULTS = {
     "updates_per_step": 1,
@@ -36,6 +36,7 @@ _COMMON_DEFAULTS = {
     "critic_input": "joint",
     "bootstrap_on_truncation": True,
     "actor_order": "simultaneous",
+    "terminal_mask": "sample",
 }
 
 _CONSTRAINED_DEFAULTS = {
@@ -45,6 +46,12 @@ _CONSTRAINED_DEFAULTS = {
     "lambda_init": 0.0,
     "lambda_max": 100.0,
 }
+
+# Every coded option of the authors' MADDPG learners at once (`--preset authors`, docs/algorithms.md); the
+# constrained variants add their multiplier rule.
+AUTHORS_PRESET = {"critic_input": "own", "bootstrap_on_truncation": False, "actor_order": "sequential",
+                  "terminal_mask": "batch_mean"}
+CONSTRAINED_AUTHORS_PRESET = {**AUTHORS_PRESET, "lambda_rule": "authors"}
 
 UNCONSTRAINED_DEFAULTS = dict(_COMMON_DEFAULTS)  # the authors' Bi-AC runs: exploration floor 0.05
 CONSTRAINED_DEFAULTS = {**_COMMON_DEFAULTS, "noise_min": [0.0, 0.0], "eps_min": [0.0, 0.0],
@@ -74,6 +81,9 @@ HELP = {
     "actor_order": "simultaneous: both actors step from the same parameters (Algorithm 2) | sequential: the "
                    "leader steps first and the follower's actor loss and multiplier see the stepped leader actor "
                    "(the authors' leader.train() then follower.train())",
+    "terminal_mask": "which transitions bootstrap: sample (each transition's own terminal flag) | batch_mean (the "
+                     "authors' effective rule: every transition bootstraps, discount scaled by the batch's done "
+                     "fraction), for the reward and the cost critics",
     "cost_threshold": "per-agent cost limits [d_leader, d_follower] on the cost critics (a single number sets both)",
     "lambda_rule": "Lagrange multiplier rule: dual (paper p22: lambda += lr (G - d), projected to [0, lambda_max], "
                    "penalty lambda (G - d)) | authors (lambda += lr relu(G - d), never decreases, hinge penalty)",
@@ -91,7 +101,7 @@ RULES = {
     "tau": Num(0.0, 1.0, lo_open=True), "noise_start": _NOISE, "noise_min": _NOISE, "eps_start": _PROB,
     "eps_min": _PROB, "explore_decay": Num(0.0, 1.0), "hidden_sizes": Sizes(), "init": Choice(("torch", "lecun")),
     "critic_input": Choice(("joint", "own")), "bootstrap_on_truncation": Bool(),
-    "actor_order": Choice(("simultaneous", "sequential")),
+    "actor_order": Choice(("simultaneous", "sequential")), "terminal_mask": Choice(TERMINAL_MASKS),
 }
 CONSTRAINED_RULES = {
     **RULES, "cost_threshold": PerAgent(Num(hint="the cost critics estimate discounted episode costs")),
@@ -138,7 +148,7 @@ def make_agent(config: dict, env):
         target_update_every=config["target_update_every"], noise_start=tuple(config["noise_start"]),
         noise_min=tuple(config["noise_min"]), eps_start=tuple(config["eps_start"]), eps_min=tuple(config["eps_min"]),
         explore_decay=config["explore_decay"], bootstrap_on_truncation=config["bootstrap_on_truncation"],
-        actor_order=config["actor_order"], **extra,
+        actor_order=config["actor_order"], terminal_mask=config["terminal_mask"], **extra,
     ))
 
 
@@ -156,11 +166,13 @@ def make_train(config: dict, env=None):
 
 register(
     AlgoSpec("cs-maddpg", "continuous", "constrained Stackelberg MADDPG (paper Algorithm 2)",
-             CONSTRAINED_DEFAULTS, HELP, CONSTRAINED_RULES, make_train, check),
+             CONSTRAINED_DEFAULTS, HELP, CONSTRAINED_RULES, make_train, check,
+             presets={"authors": CONSTRAINED_AUTHORS_PRESET}),
     AlgoSpec("s-maddpg", "continuous", "Stackelberg MADDPG without constraints (the paper's continuous 'Bi-AC')",
-             UNCONSTRAINED_DEFAULTS, HELP, RULES, make_train, check),
+             UNCONSTRAINED_DEFAULTS, HELP, RULES, make_train, check, presets={"authors": AUTHORS_PRESET}),
     AlgoSpec("c-maddpg", "continuous", "constrained MADDPG without leader/follower structure",
-             CONSTRAINED_DEFAULTS, HELP, CONSTRAINED_RULES, make_train, check),
+             CONSTRAINED_DEFAULTS, HELP, CONSTRAINED_RULES, make_train, check,
+             presets={"authors": CONSTRAINED_AUTHORS_PRESET}),
     AlgoSpec("maddpg", "continuous", "plain MADDPG (each actor on its own observation, no constraints)",
-             UNCONSTRAINED_DEFAULTS, HELP, RULES, make_train, check),
+             UNCONSTRAINED_DEFAULTS, HELP, RULES, make_train, check, presets={"authors": AUTHORS_PRESET}),
 )
