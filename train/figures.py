@@ -10,7 +10,10 @@ budgets are 4x apart or more (the quick study's MADDPG vs MAPPO-L) the step axis
 stepped fewer than 5 episode limits each (512 parallel envs) are named in red under the title, since their
 finished episodes over-represent the short (crashed) ones.
 
-``python -m train.figures STUDY_DIR`` redraws the figures of a study folder.
+``plot_learner`` draws each agent's Lagrange multiplier and cost estimate against training steps
+(``learner.csv``), one line per run. ``python -m train.figures STUDY_DIR`` redraws the figures of a study folder
+(with ``<scenario>_learner.png`` where its runs logged a multiplier or cost estimate); ``python -m train.figures
+--learner RUN_DIR ... --out FILE`` draws those of any run folders side by side.
 """
 
 from __future__ import annotations
@@ -23,9 +26,12 @@ import sys
 import numpy as np
 
 from jaxsmarl import metrics, stats
+from jaxsmarl.learner_log import FIELDS as LEARNER_FIELDS
+from jaxsmarl.learner_log import LearnerLog
 from train.reference_results import AUTHORS, authors_values
 
-__all__ = ["load_run", "binned_curve", "scenario_panels", "plot_scenario", "make_figures", "ALGO_STYLE"]
+__all__ = ["load_run", "binned_curve", "scenario_panels", "plot_scenario", "plot_learner", "make_figures",
+           "ALGO_STYLE"]
 
 RETURN_PANELS = [("leader_return", "leader return"), ("follower_return", "follower return"),
                  ("total_return", "total return")]
@@ -73,7 +79,8 @@ def load_run(run_dir: str) -> dict | None:
     log = metrics.EpisodeLog.read_csv(csv_path, int(config["num_seeds"]))
     cols = {k: np.asarray([r[k] for r in log.rows], np.float64)
             for k in metrics.ID_FIELDS + metrics.EPISODE_FIELDS}
-    return {"dir": run_dir, "config": config, "summary": summary, "episodes": cols, "log": log}
+    learner = LearnerLog.read_csv(os.path.join(run_dir, "learner.csv"))
+    return {"dir": run_dir, "config": config, "summary": summary, "episodes": cols, "log": log, "learner": learner}
 
 
 def per_seed_series(run: dict, field: str) -> list[tuple[np.ndarray, np.ndarray]]:
@@ -219,6 +226,60 @@ def plot_scenario(scenario: str, runs: dict[str, dict], out_base: str, n_bins: i
     return paths
 
 
+LEARNER_TITLES = {"lambda": "Lagrange multiplier", "cost_estimate": "cost estimate"}
+
+
+def plot_learner(runs: dict[str, dict], out_base: str, title: str = "") -> list[str]:
+    """Each agent's multiplier and cost estimate against training steps, one line per run of ``{name:
+    load_run(...)}`` (mean over seeds, 95% bootstrap band across seeds); writes ``out_base.png``. Returns the
+    paths written (none when no run logged either field)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    have = {name: run for name, run in runs.items() if run.get("learner") is not None and run["learner"].rows}
+    panels = [(f, i) for f in LEARNER_FIELDS for i in range(max((r["learner"].num_agents() for r in have.values()),
+                                                                 default=0))
+              if any(r["learner"].series(f, i) for r in have.values())]
+    if not panels:
+        return []
+    agent_name = lambda i: ("leader" if i == 0 else "follower") if len(panels) <= 4 else f"agent {i}"
+    fig, axes = plt.subplots(1, len(panels), figsize=(4.2 * len(panels), 3.6), squeeze=False)
+    for ax, (field, i) in zip(axes[0], panels):
+        for name, run in have.items():
+            series = run["learner"].series(field, i)
+            if not series:
+                continue
+            steps = sorted(set().union(*(set(x.tolist()) for x, _ in series.values())))
+            grid = np.asarray(steps, np.float64)
+            ys = np.stack([np.interp(grid, x, y, left=np.nan, right=np.nan) for x, y in series.values()])
+            mean, lo, hi = [], [], []
+            for col in ys.T:
+                col = col[np.isfinite(col)]
+                m, a, b = metrics.bootstrap_ci(col.tolist()) if col.size else (np.nan,) * 3
+                mean.append(m), lo.append(a), hi.append(b)
+            line, = ax.plot(grid, mean, label=f"{name} ({len(series)} seeds)")
+            ax.fill_between(grid, lo, hi, color=line.get_color(), alpha=0.2, linewidth=0)
+        ax.set_title(f"{agent_name(i)}: {LEARNER_TITLES[field]}")
+        ax.set_xlabel("training env steps per seed")
+        ax.grid(alpha=0.3)
+    handles, labels = axes[0, 0].get_legend_handles_labels()
+    for ax in axes[0, 1:]:
+        for h, lab in zip(*ax.get_legend_handles_labels()):
+            if lab not in labels:
+                handles.append(h), labels.append(lab)
+    fig.legend(handles, labels, loc="lower center", ncol=min(3, len(labels)), fontsize=8, frameon=False)
+    fig.suptitle(title or "multiplier and cost estimate: mean over seeds, 95% bootstrap band", fontsize=10)
+    n_rows = -(-len(labels) // min(3, len(labels)))
+    fig.tight_layout(rect=(0, 0.06 * n_rows + 0.02, 1, 0.93))
+    os.makedirs(os.path.dirname(os.path.abspath(out_base)), exist_ok=True)
+    path = f"{out_base}.png"
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return [path]
+
+
 def study_runs(study_dir: str) -> dict[str, dict[str, dict]]:
     """``{scenario: {algo: run}}`` of every run folder ``study_dir/runs/<scenario>_<algo>`` with episodes."""
     from train.experiments import STUDY
@@ -239,14 +300,36 @@ def make_figures(study_dir: str, n_bins: int = 20) -> dict[str, list[str]]:
     for scenario, runs in study_runs(study_dir).items():
         out[scenario] = plot_scenario(scenario, runs, os.path.join(study_dir, "figures", f"{scenario}_curves"),
                                       n_bins)
+        out[scenario] += plot_learner({label(a): r for a, r in runs.items()},
+                                      os.path.join(study_dir, "figures", f"{scenario}_learner"),
+                                      f"{scenario}: multiplier and cost estimate (mean over seeds, 95% band)")
     return out
 
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m train.figures", description="Redraw a study's training curves.")
-    p.add_argument("study_dir", help="folder written by python -m train.experiments")
+    p.add_argument("study_dir", nargs="?", help="folder written by python -m train.experiments")
     p.add_argument("--bins", type=int, default=20, help="bins along the training steps (default 20)")
+    p.add_argument("--learner", nargs="+", metavar="RUN_DIR",
+                   help="instead: draw the multipliers and cost estimates of these run folders into --out")
+    p.add_argument("--out", help="with --learner: output path without extension")
     args = p.parse_args(argv)
+    if args.learner:
+        runs = {}
+        for d in args.learner:
+            run = load_run(d)
+            if run is None:
+                print(f"error: {d} is not a run folder with episodes (config.json, episodes.csv)", file=sys.stderr)
+                return 2
+            runs[os.path.basename(os.path.normpath(d))] = run
+        paths = plot_learner(runs, args.out or "learner")
+        if not paths:
+            print("error: none of these runs logged a multiplier or cost estimate (learner.csv)", file=sys.stderr)
+            return 2
+        print(", ".join(paths))
+        return 0
+    if args.study_dir is None:
+        p.error("give a study folder, or --learner RUN_DIR ...")
     if args.bins < 1 or not os.path.isdir(os.path.join(args.study_dir, "runs")):
         print(f"error: {args.study_dir} has no runs/ folder (or --bins < 1)", file=sys.stderr)
         return 2
