@@ -22,7 +22,6 @@ import logging
 import os
 import shutil
 import sys
-import threading
 from typing import Any, Callable
 
 import jax
@@ -71,7 +70,9 @@ def state_digest(state: Any) -> dict[str, str]:
 def _short(e: BaseException) -> str:
     """One line for an exception raised deep inside orbax / tensorstore."""
     text = " ".join(str(e).split()) or type(e).__name__
-    return f"{type(e).__name__}: {text[:160]}{'...' if len(text) > 160 else ''}"
+    if len(text) > 200:  # the head says what failed, the tail why (e.g. the operating system's error)
+        text = f"{text[:90]} ... {text[-100:]}"
+    return f"{type(e).__name__}: {text}"
 
 
 class _QuietOrbax:
@@ -90,42 +91,21 @@ class _QuietOrbax:
             lg.setLevel(level)
 
 
-class _DropClosedLoopTracebacks:
-    """``sys.stderr`` that drops the ``RuntimeError: Event loop is closed`` tracebacks which tensorstore's reader
-    threads print when orbax abandons a failed read (its event loop is closed while other reads are in flight);
-    the failure itself is reported once as a :class:`CheckpointError`. Only writes from threads that Python did
-    not start are looked at, one traceback at a time per thread; everything else passes unchanged."""
-
-    _LAST_LINE = "RuntimeError: Event loop is closed"
-
-    def __init__(self, stream):
-        self._stream = stream
-        self._pending: dict[int, str] = {}
-        self._lock = threading.Lock()
-
-    def write(self, text: str):
-        thread = threading.current_thread()
-        if not isinstance(thread, threading._DummyThread):
-            return self._stream.write(text)
-        with self._lock:
-            buf = self._pending.pop(thread.ident, "") + text
-            if not buf.startswith("Traceback (most recent call last):"[:len(buf)]):
-                return self._stream.write(buf)
-            lines = buf.splitlines()
-            done = buf.endswith("\n") and len(lines) > 1 and not lines[-1].startswith(" ")
-            if not done:
-                self._pending[thread.ident] = buf
-            elif lines[-1].strip() != self._LAST_LINE:
-                self._stream.write(buf)
-        return len(text)
-
-    def __getattr__(self, name):
-        return getattr(self._stream, name)
+def _drop_closed_loop_errors(unraisable) -> None:
+    """``sys.unraisablehook`` that drops the ``RuntimeError: Event loop is closed`` which tensorstore's reader
+    threads raise when orbax abandons a failed read (its event loop is closed while other reads are still in
+    flight); the failure itself is reported once, as a :class:`CheckpointError`. Anything else goes on to the
+    hook that was installed before."""
+    exc = unraisable.exc_value
+    if isinstance(exc, RuntimeError) and str(exc) == "Event loop is closed":
+        return
+    _drop_closed_loop_errors.previous(unraisable)
 
 
-def _quiet_closed_loop_tracebacks() -> None:
-    if not isinstance(sys.stderr, _DropClosedLoopTracebacks):
-        sys.stderr = _DropClosedLoopTracebacks(sys.stderr)
+def _quiet_closed_loop_errors() -> None:
+    if sys.unraisablehook is not _drop_closed_loop_errors:
+        _drop_closed_loop_errors.previous = sys.unraisablehook
+        sys.unraisablehook = _drop_closed_loop_errors
 
 
 class Checkpointer:
@@ -147,9 +127,12 @@ class Checkpointer:
         meta[INTEGRITY_KEY] = {"algorithm": "sha256", "leaves": state_digest(state)}
         args = ocp.args.Composite(state=ocp.args.StandardSave(state), meta=ocp.args.JsonSave(meta))
         try:
-            self._manager.save(int(step), args=args, force=True)
-            self._manager.wait_until_finished()
+            self._manager.reload()  # the folder may have changed since (e.g. a damaged checkpoint set aside)
+            with _QuietOrbax():
+                self._manager.save(int(step), args=args, force=True)
+                self._manager.wait_until_finished()
         except Exception as e:  # noqa: BLE001 - any failure of the write is reported the same way
+            _quiet_closed_loop_errors()
             self._remove_unfinished(int(step))
             kept = self._complete_steps()
             raise CheckpointWriteError(
@@ -222,7 +205,7 @@ class Checkpointer:
                 state = self._manager.restore(step, args=args)["state"]
             state = jax.tree.map(np.asarray, state)
         except Exception as e:  # noqa: BLE001 - a missing, truncated or garbled file ends up here
-            _quiet_closed_loop_tracebacks()
+            _quiet_closed_loop_errors()
             raise self._invalid(step, f"its state is unreadable ({_short(e)})") from e
         if integrity is None:
             meta["verified"] = False
