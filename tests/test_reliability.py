@@ -329,7 +329,7 @@ def _config_file(tmp_path, cfg) -> str:
 # ---------------------------------------------------------------------------------------------------------
 # One run per folder.
 
-_HOLD = "import sys, time; from train.lock import RunLock; RunLock(sys.argv[1]).acquire(); print('held', flush=True); time.sleep(120)"
+_HOLD = "import sys, time; from train.lock import RunLock; lock = RunLock(sys.argv[1]).acquire(); print('held', flush=True); time.sleep(120)"
 
 
 def test_a_live_run_folder_is_refused_and_a_killed_one_is_not(tmp_path, small_config, capsys):
