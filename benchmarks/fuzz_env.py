@@ -107,8 +107,9 @@ def make_chunk(env, num_envs: int, num_steps: int):
     return jax.jit(chunk, donate_argnums=(1, 2))
 
 
-def fuzz(name: str, total_steps: int, num_envs: int, chunk_steps: int, seed: int) -> dict:
-    env = envs_jax.make(name)
+def fuzz(name, total_steps: int, num_envs: int, chunk_steps: int, seed: int) -> dict:
+    """Counts for ``total_steps`` adversarial steps of scenario ``name`` (or of a given env)."""
+    env = envs_jax.make(name) if isinstance(name, str) else name
     num_envs = min(num_envs, total_steps)
     chunk_steps = max(1, min(chunk_steps, total_steps // num_envs))
     n_chunks = math.ceil(total_steps / (num_envs * chunk_steps))

@@ -329,7 +329,8 @@ def _config_file(tmp_path, cfg) -> str:
 # ---------------------------------------------------------------------------------------------------------
 # One run per folder.
 
-_HOLD = "import sys, time; from train.lock import RunLock; lock = RunLock(sys.argv[1]).acquire(); print('held', flush=True); time.sleep(120)"
+_HOLD = ("import sys, time; from train.lock import RunLock; lock = RunLock(sys.argv[1]).acquire(); "
+         "print('held', flush=True); time.sleep(120)")
 
 
 def test_a_live_run_folder_is_refused_and_a_killed_one_is_not(tmp_path, small_config, capsys):
@@ -406,3 +407,26 @@ def test_environment_parameters_at_the_edge_of_their_range_are_accepted():
     assert env.default_params.lane_centering_cost == 0.0
     env = envs_jax.make("roundabout", speed_band_low=12.0, speed_band_high=12.0, duration=0.5)
     assert env.default_params.duration == 0.5
+
+
+def test_fuzzer_counts_non_finite_steps():
+    # benchmarks/fuzz_env.py's counter, on an env whose reward is NaN at every step (params set past make()'s
+    # checks) and on the same env as shipped; its adversarial actions hold NaN, infinities and huge values
+    import importlib.util
+
+    import envs_jax
+    from envs_jax.env import DrivingEnv
+
+    spec = importlib.util.spec_from_file_location("fuzz_env", os.path.join(ROOT, "benchmarks", "fuzz_env.py"))
+    fuzz_env = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(fuzz_env)
+    env = envs_jax.make("racetrack")
+    a = jax.vmap(fuzz_env.adversarial_actions(env))(jax.random.split(jax.random.PRNGKey(0), 500))
+    assert np.isnan(a).any() and np.isposinf(a).any() and np.isneginf(a).any() and (np.abs(a) == 1e30).any()
+    assert ((np.abs(a) > 1) & np.isfinite(a)).any() and (np.abs(a) <= 1).any()
+    broken = DrivingEnv(env.scenario, env.simulation_frequency, env.policy_frequency,
+                        env.default_params.replace(lane_centering_reward=float("nan")))
+    res = fuzz_env.fuzz(broken, 64, 8, 8, 0)
+    assert res["steps"] == 64 and res["bad_steps"] == res["bad_by_output"]["reward"] >= 32
+    assert res["bad_by_output"]["cost"] == res["bad_by_output"]["state"] == 0
+    assert fuzz_env.fuzz(env, 64, 8, 8, 0)["bad_steps"] == 0
