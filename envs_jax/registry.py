@@ -82,6 +82,7 @@ def make(name: str, env_config: dict | None = None, action_mode: str | None = No
         raise ValueError(f"{name}: simulation_frequency and policy_frequency must be integers with "
                          f"0 < policy_frequency <= simulation_frequency, got {sim} and {pol}")
     values = {k: _check_value(name, params, k, v) for k, v in values.items()}
+    _check_ranges(name, params, values)
     params = params.replace(**values)
     return DrivingEnv(scenario, sim, pol, params)
 
@@ -106,6 +107,49 @@ def _check_value(name, params, key, value):
     if not np.all(np.isfinite(arr)):
         raise ValueError(f"{name}: parameter {key!r} must be finite, got {value!r}")
     return arr
+
+
+# Physical ranges of params fields, wherever a scenario has them: (lower bound, whether the bound itself is
+# allowed, what the number is). Rewards may take either sign; positions and headings only need to be finite.
+_RANGES = {
+    "duration": (0.0, False, "an episode length in seconds"),
+    "collision_cost": (0.0, True, "a cost"),
+    "lane_centering_cost": (0.0, True, "a cost weight (1 / (1 + w * lateral^2))"),
+    "offroad_cost": (0.0, True, "a cost"),
+    "start_noise": (0.0, True, "a standard deviation in metres"),
+    "start_s": (0.0, True, "a distance along the start lane in metres"),
+    "arrival_s": (0.0, True, "a distance along the exit lane in metres"),
+    "speed_band_low": (0.0, True, "a speed in m/s"),
+    "speed_band_high": (0.0, True, "a speed in m/s"),
+    "target_speeds": (0.0, True, "speeds in m/s"),
+}
+
+
+def _check_ranges(name: str, params, values: dict) -> None:
+    """Reject overrides outside their physical range (``ValueError`` naming the key and the allowed range)."""
+    for key, value in values.items():
+        if key not in _RANGES or value is None:
+            continue
+        low, inclusive, what = _RANGES[key]
+        arr = np.asarray(value, dtype=np.float64)
+        if not np.all(arr >= low if inclusive else arr > low):
+            raise ValueError(f"{name}: parameter {key!r} is {what} and must be {'>=' if inclusive else '>'} {low:g}, "
+                             f"got {np.asarray(value).tolist()!r}")
+    merged = lambda key: values[key] if key in values else getattr(params, key, None)
+    if ("speed_band_low" in values or "speed_band_high" in values) and merged("speed_band_low") is not None:
+        lo, hi = float(merged("speed_band_low")), float(merged("speed_band_high"))
+        if lo > hi:
+            raise ValueError(f"{name}: speed_band_low ({lo:g}) must not exceed speed_band_high ({hi:g})")
+    for key in ("acceleration_range", "steering_range"):
+        if key in values and values[key] is not None:
+            lo, hi = np.asarray(values[key], dtype=np.float64).tolist()
+            if not lo < hi:
+                raise ValueError(f"{name}: parameter {key!r} must be (low, high) with low < high, got {[lo, hi]}")
+    if "obstacles" in values and values["obstacles"] is not None:
+        sizes = np.asarray(values["obstacles"], dtype=np.float64)[:, 3:5]
+        if not np.all(sizes > 0):
+            raise ValueError(f"{name}: obstacles rows are [x, y, heading, length, width] with length and width "
+                             f"> 0 metres, got lengths/widths {sizes.tolist()}")
 
 
 def _translate_env_config(scenario: Scenario, params, config: dict) -> dict:

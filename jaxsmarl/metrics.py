@@ -10,6 +10,7 @@ baselines.md §5.4).
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import json
 import math
@@ -22,7 +23,7 @@ import numpy as np
 
 __all__ = [
     "EPISODE_FIELDS", "episode_record", "episodes_from_steps", "EpisodeLog", "bootstrap_ci", "summarize",
-    "format_duration", "progress_line", "window_means", "write_json",
+    "format_duration", "progress_line", "window_means", "write_json", "atomic_open",
 ]
 
 # Per-episode columns (after seed / episode / env / step bookkeeping columns).
@@ -111,13 +112,11 @@ class EpisodeLog:
             self.episode_counts[r["seed"]] = max(self.episode_counts[r["seed"]], r["episode"] + 1)
 
     def write_csv(self, path: str | os.PathLike) -> None:
-        tmp = f"{path}.tmp"
-        with open(tmp, "w", newline="") as f:
+        with atomic_open(path, newline="") as f:
             w = csv.DictWriter(f, fieldnames=list(ID_FIELDS + EPISODE_FIELDS))
             w.writeheader()
             for r in sorted(self.rows, key=lambda r: (r["seed"], r["episode"])):
                 w.writerow(r)
-        os.replace(tmp, path)
 
     @classmethod
     def read_csv(cls, path: str | os.PathLike, num_seeds: int) -> "EpisodeLog":
@@ -206,7 +205,25 @@ def write_json(path: str | os.PathLike, obj: Any) -> None:
             return clean(o.tolist())
         return o
 
-    tmp = f"{path}.tmp"
-    with open(tmp, "w") as f:
+    with atomic_open(path) as f:
         json.dump(clean(obj), f, indent=2)
-    os.replace(tmp, path)
+
+
+@contextlib.contextmanager
+def atomic_open(path: str | os.PathLike, newline: str | None = None):
+    """``with atomic_open(path) as f:`` writes text to ``path.tmp``, flushes it to disk and renames it onto
+    ``path`` only once all of it is written; on any error the temporary file is removed and ``path`` keeps its
+    old content, so a reader never sees a half-written file."""
+    tmp = f"{os.fspath(path)}.tmp"
+    try:
+        with open(tmp, "w", newline=newline) as f:
+            yield f
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            os.remove(tmp)
+        except OSError:
+            pass
+        raise

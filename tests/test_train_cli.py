@@ -125,7 +125,8 @@ def test_cli_run_writes_metrics_and_evaluates(tmp_path, capsys):
     assert cli.main(SMALL + ["--out", out]) == 0
     printed = capsys.readouterr().out
     assert "merge/csq x2" in printed and "steps/s" in printed and "greedy evaluation" in printed
-    assert sorted(os.listdir(out)) == ["checkpoints", "config.json", "episodes.csv", "eval.csv", "learner.csv", "summary.json"]
+    assert sorted(f for f in os.listdir(out) if f != ".lock") == ["checkpoints", "config.json", "episodes.csv",
+                                                                  "eval.csv", "learner.csv", "summary.json"]
     with open(os.path.join(out, "episodes.csv")) as f:
         rows = list(csv.DictReader(f))
     assert {r["seed"] for r in rows} == {"0", "1"} and {r["env"] for r in rows} == {"0", "1"}

@@ -153,9 +153,16 @@ def main(argv=None) -> int:
         from train.run import run
 
         run(cfg, out, resume=args.resume, overwrite=args.overwrite, verbose=not args.quiet)
-    except ValueError as e:
+    except ValueError as e:  # bad input, a refused run folder, no valid checkpoint
         print(f"error: {e}", file=sys.stderr)
         return 2
+    except (RuntimeError, OSError) as e:
+        from jaxsmarl.checkpoints import CheckpointWriteError  # here: importing orbax early would start JAX
+
+        if not isinstance(e, (CheckpointWriteError, OSError)):
+            raise
+        print(f"error: {e}; the run stopped", file=sys.stderr)  # a write failed (no space, permission denied)
+        return 1
     return 0
 
 

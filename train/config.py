@@ -256,6 +256,15 @@ def load_json(path: str) -> dict:
     try:
         with open(path) as f:
             data = json.load(f)
+    except FileNotFoundError:
+        raise ValueError(f"config file {path} does not exist; give the path of a JSON file of key: value "
+                         "pairs") from None
+    except IsADirectoryError:
+        raise ValueError(f"config file {path} is a folder, not a JSON file") from None
+    except OSError as e:
+        raise ValueError(f"config file {path} cannot be read ({e.strerror or e})") from None
+    except UnicodeDecodeError as e:
+        raise ValueError(f"config file {path} is not valid JSON (not UTF-8 text: {e.reason}); fix the file") from None
     except json.JSONDecodeError as e:
         raise ValueError(f"config file {path} is not valid JSON ({e}); fix the file") from e
     if not isinstance(data, dict):

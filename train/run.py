@@ -28,10 +28,11 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from jaxsmarl import metrics
+from jaxsmarl.checkpoints import Checkpointer, CheckpointError
 from jaxsmarl.learner_log import LearnerLog, chunk_rows
-from jaxsmarl.checkpoints import Checkpointer
 from train.loop import make_train, seed_keys
 from train.config import read_run_config
+from train.lock import LOCK_NAME, RunLock
 
 __all__ = ["run", "restore_run", "evaluate_checkpoint", "use_all_cpu_cores", "seed_sharding", "seed_parallel",
            "seed_loop"]
@@ -235,12 +236,47 @@ def run(config: dict, out: str, *, resume: bool = False, overwrite: bool = False
     Returns ``{"state": final state (all seeds), "log": EpisodeLog, "summary": dict}``.
     """
     out = os.path.abspath(out)
-    _check_out_dir(out, resume, overwrite)
-    if overwrite and not resume and os.path.isdir(out):
-        import shutil
+    lock = RunLock(out).acquire() if os.path.isdir(out) else None  # a live run's folder is refused first
+    try:
+        _check_out_dir(out, resume, overwrite)
+        os.makedirs(out, exist_ok=True)
+        lock = lock or RunLock(out).acquire()
+        if overwrite and not resume:
+            _clear_run_dir(out)
+        return _run_locked(config, out, resume=resume, env=env, verbose=verbose, max_chunks=max_chunks)
+    finally:
+        if lock is not None:
+            lock.release()
 
-        shutil.rmtree(out)
-    os.makedirs(out, exist_ok=True)
+
+def _clear_run_dir(out: str) -> None:
+    """Delete everything in run folder ``out`` but its lock file (held by this process)."""
+    import shutil
+
+    for name in os.listdir(out):
+        if name == LOCK_NAME:
+            continue
+        path = os.path.join(out, name)
+        if os.path.isdir(path) and not os.path.islink(path):
+            shutil.rmtree(path)
+        else:
+            os.remove(path)
+
+
+def _set_aside(out: str, step: int) -> str:
+    """Move damaged checkpoint ``step`` out of ``checkpoints/`` (so the resumed run can write that step again)
+    into ``damaged_checkpoints/``, where it stays for inspection."""
+    src = os.path.join(out, "checkpoints", str(step))
+    base = os.path.join(out, "damaged_checkpoints", str(step))
+    dst, i = base, 1
+    while os.path.exists(dst):
+        dst, i = f"{base}.{i}", i + 1
+    os.makedirs(os.path.dirname(dst), exist_ok=True)
+    os.replace(src, dst)
+    return dst
+
+
+def _run_locked(config: dict, out: str, *, resume: bool, env, verbose: bool, max_chunks: int | None) -> dict:
     cfg_path = os.path.join(out, "config.json")
     if resume:
         saved_cfg = read_run_config(out)
@@ -261,13 +297,16 @@ def run(config: dict, out: str, *, resume: bool = False, overwrite: bool = False
     learner = LearnerLog()
     prev = {"train_s_total": 0.0, "compile_s_total": 0.0, "segments": 0}  # earlier segments of a resumed run
     if resume:
-        if saved_cfg["total_steps"] != config["total_steps"]:
-            try:
-                _check_new_budget(saved_cfg, config, ckpt.meta(), trainer, env)
-            except ValueError:
-                ckpt.close()
-                raise
-        state, meta = ckpt.restore(None, state)
+        skipped: list[CheckpointError] = []
+        try:  # the newest checkpoint that passes its digests
+            step, state, meta = ckpt.restore_valid(state, skipped.append)
+            if saved_cfg["total_steps"] != config["total_steps"]:
+                _check_new_budget(saved_cfg, config, meta, trainer, env)
+        except ValueError:
+            ckpt.close()
+            raise
+        for e in skipped:  # said even when quiet: the newest checkpoint is not the one resumed
+            _print(f"{name}: skipped checkpoint {e.step} ({e.reason}); moved it to {_set_aside(out, e.step)}", False)
         done_chunks = int(meta["chunks_done"])
         prev = {k: meta.get(k, v) for k, v in prev.items()}
         if os.path.exists(csv_path):
@@ -276,7 +315,8 @@ def run(config: dict, out: str, *, resume: bool = False, overwrite: bool = False
         learner = LearnerLog.read_csv(learner_path)
         learner.truncate(int(meta["env_steps"]))
         if verbose:
-            _print(f"{name}: resumed from {out}/checkpoints at {meta['env_steps']} env steps", False)
+            unchecked = " (saved without digests: not verified)" if meta.get("verified") is False else ""
+            _print(f"{name}: resumed from {out}/checkpoints at {meta['env_steps']} env steps{unchecked}", False)
     metrics.write_json(cfg_path, config)  # after the resume checks: a refused resume leaves the saved run as it was
     state = jax.device_put(state, sharding)
     jax.block_until_ready(state)
@@ -315,9 +355,10 @@ def run(config: dict, out: str, *, resume: bool = False, overwrite: bool = False
         is_last = c == trainer.n_chunks - 1
         if is_last or (ckpt_every_chunks and (c + 1) % ckpt_every_chunks == 0) or (
                 max_chunks is not None and n_run >= max_chunks):
-            ckpt.save(env_steps, state, last_meta)
+            # episodes first: a checkpoint never runs ahead of the log (resuming drops logged episodes past it)
             log.write_csv(csv_path)
             learner.write_csv(learner_path)
+            ckpt.save(env_steps, state, last_meta)
         if verbose:
             recent = [r for r in log.rows if r["end_step"] > env_steps - config["chunk_steps"]]
             sps = steps_run / max(train_s, 1e-9)
@@ -381,11 +422,10 @@ def _write_eval_csv(path: str, rows: list[dict]) -> None:
 
     if not rows:
         return
-    with open(path + ".tmp", "w", newline="") as f:
+    with metrics.atomic_open(path, newline="") as f:
         w = csv.DictWriter(f, fieldnames=list(rows[0]))
         w.writeheader()
         w.writerows(rows)
-    os.replace(path + ".tmp", path)
 
 
 def restore_run(run_dir: str, step: int | None = None):
@@ -399,11 +439,23 @@ def restore_run(run_dir: str, step: int | None = None):
                          "python -m train)")
     trainer = make_train(config)
     template = jax.eval_shape(jax.vmap(trainer.init), seed_keys(config))
+    return config, trainer, *_restore_checked(ckpt_dir, step, template)
+
+
+def _restore_checked(ckpt_dir: str, step: int | None, template) -> tuple[Any, dict]:
+    """``(state, meta)`` of checkpoint ``step`` in ``ckpt_dir`` if it is intact (else CheckpointError); for None
+    the newest intact one, saying on stderr which newer ones were skipped and why."""
+    skipped: list[CheckpointError] = []
     with Checkpointer(ckpt_dir) as ckpt:
         if ckpt.latest_step() is None:
             raise ValueError(f"{ckpt_dir} holds no complete checkpoint yet")
-        state, meta = ckpt.restore(step, template)
-    return config, trainer, state, meta
+        if step is not None:
+            return ckpt.restore(step, template)
+        _, state, meta = ckpt.restore_valid(template, skipped.append)
+    for e in skipped:
+        print(f"skipped checkpoint {e.step} of {ckpt_dir} ({e.reason}); using {meta.get('env_steps')}",
+              file=sys.stderr)
+    return state, meta
 
 
 def evaluate_checkpoint(out: str, episodes: int | None = None, step: int | None = None, env=None) -> dict:
@@ -413,8 +465,7 @@ def evaluate_checkpoint(out: str, episodes: int | None = None, step: int | None 
         config["eval_episodes"] = int(episodes)
     prog = _program(config, env)
     template = jax.eval_shape(prog["init"], seed_keys(config))
-    with Checkpointer(os.path.join(out, "checkpoints")) as ckpt:
-        state, meta = ckpt.restore(step, template)
+    state, meta = _restore_checked(os.path.join(out, "checkpoints"), step, template)
     ev = evaluate_state(prog["trainer"], jax.device_put(state, prog["sharding"]), config, prog["evaluate"])
     ev["env_steps"] = meta.get("env_steps")
     return ev
