@@ -118,17 +118,18 @@ CODE_DIFFERENCES = [
      "Only an agent's own termination stops bootstrapping (paper); the authors also cut at the time limit."),
     (None, None,
      "The cost thresholds are as the authors ran them (d = 5 for CSQ, d = 1 on the racetrack), at or above the "
-     "largest possible discounted cost, so the constraints are nearly inactive (original_code.md §8.3)."),
+     "largest possible discounted cost, so the constraints are nearly inactive (docs/algorithms.md, 'Why the "
+     "authors' thresholds barely bind')."),
     (None, None,
      "The unconstrained baselines are the authors': 'Bi-AC' in merge / roundabout is CSQ with d = 100 and an "
      "exploration floor of 0.05 (our `sq`); on the continuous scenarios it is Stackelberg MADDPG without a cost "
      "critic (our `s-maddpg`)."),
     (None, None,
-     "Rewards, costs and termination are the authors' coded ones (scenarios.md), e.g. the roundabout's +5 on every "
+     "Rewards, costs and termination are the authors' coded ones (docs/scenarios.md), e.g. the roundabout's +5 on every "
      "step on the exit road and merge's one-shot arrival bonus."),
     (None, None,
      "The authors' MACPO / MAPPO-L code is not shipped; our implementations follow the published algorithms "
-     "(baselines.md), so their reference numbers are not like-for-like."),
+     "(docs/algorithms.md), so their reference numbers are not like-for-like."),
 ]
 
 
