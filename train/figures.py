@@ -5,7 +5,7 @@ rate and the leader's and follower's arrival rate (racetrack: crash rate, off-ro
 leader and the follower). Each algorithm is one line: episodes are binned by the env step at which they ended
 (``end_step`` of ``episodes.csv``), each seed's episodes in a bin are averaged, and the line is the mean over seeds
 with a 95% bootstrap band across seeds. The authors' recorded values (last 10% of training, one marker per seed,
-original_code.md §10.3) sit at the right edge, clearly labelled with their own training budget. When the runs'
+docs/results.md) sit at the right edge, clearly labelled with their own training budget. When the runs'
 budgets are 4x apart or more (the quick study's MADDPG vs MAPPO-L) the step axis is logarithmic; runs whose envs
 stepped fewer than 5 episode limits each (512 parallel envs) are named in red under the title, since their
 finished episodes over-represent the short (crashed) ones.
