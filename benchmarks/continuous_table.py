@@ -5,8 +5,8 @@
 For every ``<scenario>_<algo>[_suffix]/summary.json`` of intersection and racetrack it prints one row: the last 10%
 of each seed's training episodes and the greedy evaluation, as mean [95% bootstrap interval] across seeds (the
 intervals ``python -m train`` wrote into summary.json), next to the authors' recorded runs (mean +- population std
-over their seeds as in original_code.md §10.4, ``train.reference_results.authors_summary``). The README's comparison table
-is this script's output.
+over their seeds, ``train.reference_results.authors_summary``). The comparison table of docs/results.md is this
+script's output.
 """
 
 from __future__ import annotations

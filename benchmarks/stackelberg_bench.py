@@ -1,6 +1,6 @@
 """Benchmark: jitted batched Stackelberg solver vs a per-sample Python loop over the 25 action pairs.
 
-The loop is the authors' style (original_code.md §4.1: for each sample, for a_L in range(5): for a_F in
+The loop is the authors' style (docs/algorithms.md, CSQ: for each sample, for a_L in range(5): for a_F in
 range(5): ...), but computes the same rule as the solver (eq. p14, min_cost fallback, first-index ties) so
 the two outputs are checked equal. Both get the value tensors precomputed (no network evaluation). The loop
 gets them as Python lists, the fastest way to index them in Python; the array -> list conversion is NOT in

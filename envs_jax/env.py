@@ -269,7 +269,7 @@ class DrivingEnv:
         end = s > lengths[tl] - L.VEHICLE_LENGTH / 2
         # next_lane only for the (rare) vehicles at the end of their lane.
         nl, nrp = sparse_map(road.next_lane, end, tl, s, st.route_roads, st.route_ids, st.route_len, rp,
-                             fraction=1 / 32)  # ~2% of the vehicles per frame
+                             fraction=1 / 32)  # few vehicles reach a lane end in any one frame
         return st.replace(target_lane=jnp.where(end, nl, tl), route_ptr=jnp.where(end, nrp, rp))
 
     def _decide_discrete(self, st: EnvState, coords, action, params):
@@ -338,7 +338,7 @@ class DrivingEnv:
             disp_b = jnp.stack([b.vx, b.vy]) * dt
             return collision.polygons_intersecting(a.corners, b.corners, disp_a, disp_b)
 
-        # ~1-5% of the pairs pass the prefilter
+        # few pairs pass the prefilter (docs/performance.md)
         inter_all, will_all, trans_all = sparse_map(separating_axis, near, pose_a, pose_b, fraction=1 / 32)
         impact = [jnp.zeros(2, x.dtype) for _ in range(NUM_AGENTS)]
         has = [jnp.zeros((), bool) for _ in range(NUM_AGENTS)]

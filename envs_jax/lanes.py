@@ -164,7 +164,7 @@ def wrap_to_pi(x):
     """``utils.wrap_to_pi``: ((x + pi) mod 2 pi) - pi.
 
     Written with ``floor`` rather than ``mod``: XLA lowers ``mod`` to a scalar
-    ``fmod`` call on CPU (about 30x slower), and the two agree to round-off.
+    ``fmod`` call on CPU, much slower, and the two agree to round-off.
     """
     y = x + jnp.pi
     return y - 2 * jnp.pi * jnp.floor(y / (2 * jnp.pi)) - jnp.pi
@@ -468,7 +468,7 @@ def _locate_flat(lanes: LaneTable, px, py, heading):
         need = lowest <= best + (BOUND_SLACK_ABS + BOUND_SLACK_REL * jnp.abs(best))
         sine_best, sine_lane, sine_lat = sparse.packed_rows(
             jax.vmap(lambda x, y, h: _sine_family(lanes, x, y, h)), need, px, py, heading,
-            fraction=1 / 4)  # 14% (merge) to 23% (roundabout) of the vehicles per frame
+            fraction=1 / 4)  # above the share of vehicle frames near a sine lane (docs/performance.md)
         # the sine lane wins if strictly better, or if equal and first in table order
         take = need & ((sine_best < best) | ((sine_best == best) & (sine_lane < lane)))
         lane = jnp.where(take, sine_lane, lane)

@@ -2,7 +2,7 @@
 
 With samples as rows, reverse-mode autodiff of ``x @ W`` computes the weight gradient as ``x^T @ g``, a product
 that contracts the sample axis of both operands in first position; XLA:CPU hands that layout to a generic kernel
-that runs ~3x slower than a row-major ``[m, k] @ [k, n]`` product of the same size (YNNPACK takes only the latter).
+that runs several times slower than a row-major ``[m, k] @ [k, n]`` product of the same size (YNNPACK takes only the latter).
 With samples as columns every product of a dense layer can be made row-major: the forward pass ``W^T @ x`` (the
 small kernel transposed explicitly), the input gradient ``W @ g`` and the weight gradient ``x @ g^T``, which
 contracts the last axes of both operands (~as fast as a forward product). :func:`dense` is that layer with its
@@ -13,10 +13,8 @@ own reverse-mode rule; it computes exactly ``(x^T @ W)^T``, so networks built on
 on the forward pass: for a vjp evaluated many times at one point (MACPO's Fisher products), where the copy is made
 once.
 
-Measured (2-core CPU): a 3-layer MLP forward + backward on 512 samples ~15% faster on one core; whole training
-runs (``benchmarks/train_onpolicy.py``, ``benchmarks/train_maddpg.py``): racetrack MAPPO-L with 8 seeds ~10% more
-env steps/s, CS-MADDPG with 1 seed ~18% (with 8 seeds, both cores busy, no measurable change; MACPO, whose update
-is dominated by its conjugate-gradient products, gained nothing and keeps the row layout for its actor).
+MACPO's actor keeps the row layout (its update is dominated by the conjugate-gradient products). Measurements:
+docs/performance.md.
 """
 
 from __future__ import annotations
@@ -91,7 +89,7 @@ def in_chunks(fn, *xs, chunk: int = 512):
     of chunks).
 
     For the forward passes over a whole rollout (8192 samples): a network's ``[B, 64]`` intermediates then stay in
-    the core's cache instead of streaming 2 MB arrays through memory, ~3x faster on XLA:CPU."""
+    the core's cache instead of streaming through memory."""
     B = xs[0].shape[0]
     if B <= chunk:
         return fn(*xs)

@@ -1,4 +1,4 @@
-"""Constrained policy optimisation step (Achiam et al. 2017) as MACPO codes it (baselines.md §2.4), branch-free.
+"""Constrained policy optimisation step (Achiam et al. 2017) as MACPO codes it (docs/algorithms.md, MACPO), branch-free.
 
 * :func:`fisher_vector_product`: ``(H + damping I) v`` with ``H`` the Hessian of the mean KL at the current
   parameters, by forward-over-reverse differentiation (``jvp`` of ``grad``); the reference adds ``0.1 v``.

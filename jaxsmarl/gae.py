@@ -4,13 +4,13 @@ For a rollout of ``T`` steps of many environments (any trailing batch shape, e.g
 
     delta_t = r_t + gamma * (1 - term_t) * V(s'_t) - V(s_t)
     A_t     = delta_t + gamma * lambda * (1 - term_t) * (1 - done_t) * A_{t+1},     A_T = 0
-    R_t     = A_t + V(s_t)    (the value target; baselines.md §2.2 ``compute_returns``)
+    R_t     = A_t + V(s_t)    (the value target, the reference's ``compute_returns``)
 
 ``s'_t`` is the observation that follows step t *before* any auto-reset (``info["terminal_obs"]`` when the
 episode ended). ``term_t`` is the agent's OWN termination (crash, arrival, off-road): no bootstrap and the
 advantage chain stops. ``done_t`` is the end of the episode (both agents terminated, or the time limit): the
 chain stops because step t+1 belongs to a new episode, but a truncated agent still bootstraps from
-``V(s'_t)``. Used alike for rewards and for costs (same gamma, lambda: baselines.md §2.2).
+``V(s'_t)``. Used alike for rewards and for costs (same gamma, lambda: docs/algorithms.md, MAPPO-L and MACPO).
 """
 
 from __future__ import annotations

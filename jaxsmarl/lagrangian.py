@@ -8,7 +8,7 @@ the actor and minimised over ``lambda_i >= 0``. Two multiplier rules:
   gradient is ``-(G - d)``; the printed extra factor lambda is a typo). lambda rises while the cost estimate exceeds
   d and falls when it is below. The actor's penalty is ``lambda (G - d)``. A small ``lr`` relative to the actors'
   gives the paper's slower timescale.
-* ``"authors"`` (original_code.md §5.2, baselines.md §3.3): ``lambda <- clip(lambda + lr mean(relu(G - d)), 0,
+* ``"authors"`` (docs/algorithms.md, 'Lagrange multipliers'): ``lambda <- clip(lambda + lr mean(relu(G - d)), 0,
   lambda_max)``, a hinge increment that never decreases lambda, and the hinge penalty ``lambda relu(G - d)``.
 
 Everything broadcasts over a trailing constraint / agent axis: ``lam`` ``[n]``, cost samples ``[..., n]``.

@@ -4,8 +4,8 @@ Inside the compiled loop, :func:`episode_record` turns the auto-reset wrapper's 
 fixed-shape record that is valid where ``returned_episode`` is True. On the host, :func:`episodes_from_steps`
 turns the stacked records ``[seeds, steps, envs]`` into rows (one per finished episode), :class:`EpisodeLog`
 keeps them and writes CSV/JSON, and :func:`summarize` gives the "last 10% of training episodes" statistics
-(original_code.md §10.3 definitions) with 95% bootstrap intervals ACROSS SEEDS (the replication unit,
-baselines.md §5.4).
+(the window of the authors' records, docs/results.md) with 95% bootstrap intervals ACROSS SEEDS (the
+replication unit).
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """Centralized joint-action critics for the Stackelberg algorithms (paper eqs. q_value / cost_value).
 
 Each agent i owns a reward critic ``Q_i(s, a1, a2)`` and a cost critic ``G_i(s, a1, a2)``. As in the authors'
-code (``Critic_Discrete`` / ``Cost_Discrete``, original_code.md §3) a critic is an MLP (64-64-64, ReLU, linear
+code (``Critic_Discrete`` / ``Cost_Discrete``, docs/algorithms.md, CSQ) a critic is an MLP (64-64-64, ReLU, linear
 output) on ``concat(o_i, onehot(a1), onehot(a2))`` where ``o_i`` is the agent's own observation.
 
 The networks of all agents and kinds are stored as ONE parameter pytree with leading axes

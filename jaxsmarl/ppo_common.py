@@ -1,4 +1,4 @@
-"""Building blocks shared by MAPPO-L and MACPO (baselines.md §2.2, §2.7): networks, the Gaussian policy,
+"""Building blocks shared by MAPPO-L and MACPO (docs/algorithms.md, MAPPO-L and MACPO): networks, the Gaussian policy,
 running normalisers and the critic loss.
 
 * :class:`MLP`: the reference ``MLPBase`` (MACPO-repo ``algorithms/utils/mlp.py``): ``LayerNorm(obs)`` (feature
@@ -7,14 +7,14 @@ running normalisers and the critic loss.
   The orthogonal matrices come from :func:`orthogonal_init` (Gram-Schmidt in plain XLA ops), not from
   ``jax.nn.initializers.orthogonal``: that one calls LAPACK's QR, whose XLA:CPU kernel blocks a thread of the
   intra-op pool while it waits for work it queued on the same pool, so two seed shards initialising at once on
-  a 2-core machine deadlock (the MAPPO-L/MACPO start-up hang).
+  a 2-core machine deadlock.
 * Gaussian policy with a state-independent bounded standard deviation (``DiagGaussian``):
   ``std = sigmoid(log_std / x_coef) * y_coef``, ``log_std`` initialised to ``x_coef`` (std 0.5 sigmoid(1) = 0.37).
 * :class:`RunningStats`: running mean / variance (Chan et al.'s parallel update), used for the observation
   normalisation and for the value-target normalisation (the reference's ValueNorm; one per critic here instead
   of the reference's shared reward normaliser, a documented deviation).
-* :func:`value_loss`: clipped value loss with the Huber loss (clip 0.2, delta 10; §2.3 step 4).
-* :func:`random_permutation`: the minibatch shuffle, like ``jax.random.permutation`` but ~3x cheaper on XLA:CPU.
+* :func:`value_loss`: clipped value loss with the Huber loss (clip 0.2, delta 10).
+* :func:`random_permutation`: the minibatch shuffle, like ``jax.random.permutation`` but cheaper on XLA:CPU.
 * :func:`mlp_columns`: :class:`MLP` on column samples (:mod:`jaxsmarl.columns`), for the update's gradients.
 * :func:`mlp_rows`: :class:`MLP` whose reverse mode takes weight gradients from transposed layer inputs
   (:func:`jaxsmarl.columns.affine_rows`), for MACPO's Fisher products.
@@ -45,14 +45,11 @@ def random_permutation(key, n: int):
     """A uniformly random permutation of ``range(n)`` (int32), by sorts of single packed ``uint32`` keys.
 
     ``jax.random.permutation`` shuffles with ``ceil(3 ln n / ln(2^32 - 1))`` rounds of a stable key-value sort
-    (random keys, the array as values); XLA:CPU takes ~1.4 ms per such sort of 8192 elements and ~0.33 ms to
-    sort 8192 plain ``uint32``s. Here each round packs ``32 - b`` random bits (``b = ceil(log2 n)``) above the
+    (random keys, the array as values), several times the cost of sorting plain ``uint32``s on XLA:CPU. Here each round packs ``32 - b`` random bits (``b = ceil(log2 n)``) above the
     element's current position (the low ``b`` bits), sorts those distinct keys and reads the positions back
     from the low bits: equal random parts keep the previous order, as in jax's stable rounds. The number of
     rounds keeps jax's collision standard (at least ``3 log2 n`` random bits per element in all): 3 rounds of 19
-    bits for n = 8192 (jax: 2 rounds of 32 bits); 10 permutations of 8192 take 9.6 ms on one core against jax's
-    28.3 (the MAPPO-L update draws 10 per seed; ~8% of its time saved). Beyond ``n =
-    2^24`` (fewer than 8 random bits per round) it is ``jax.random.permutation``.
+    bits for n = 8192 (jax: 2 rounds of 32 bits). Beyond ``n = 2^24`` (fewer than 8 random bits per round) it is ``jax.random.permutation``.
     """
     try:
         size = operator.index(n)
@@ -79,7 +76,7 @@ class Flat:
     """A parameter tree raveled into one vector (``jax.flatten_util.ravel_pytree``), ``tree()`` to use it.
 
     Carried through the minibatch loops on XLA:CPU: optax then clips and steps one vector per network (a few
-    kernels) instead of each of its ~12 arrays (~5 small kernels each, ~120 per MAPPO-L minibatch step), and the
+    kernels) instead of each of its arrays (several small kernels each), and the
     gradient arrives as one vector. Same values as the tree form up to summation order (the global norm)."""
 
     vec: jax.Array
@@ -173,8 +170,7 @@ def mlp_columns(params, xt, layer_n: int = 1, feature_norm: bool = True):
     folded into the dense layer after it: ``W^T (s * xhat + o) + b = (s W)^T xhat + (o W + b)``, so that every
     sum over the samples of the backward pass (LayerNorm and bias gradients) happens inside the layers' weight
     and bias products instead of as separate reductions of ``[64, B]`` arrays, and the input LayerNorm, which
-    has no parameter before it, needs no input gradient at all (~20% off a critic's forward + backward pass on
-    512 samples).
+    has no parameter before it, needs no input gradient at all.
     """
     p = params["params"]
     # behind a barrier: else XLA normalises the input in its row layout (it is the transpose of one) and the

@@ -23,7 +23,7 @@ Rules fixed here (the paper leaves them open):
 * No feasible action at a level (``infeasible``):
   ``"min_cost"`` (default): take the action with the lowest cost estimate, ties to the highest Q, then the
   index rule; ``"argmax"``: the unconstrained argmax of Q (the authors' "backup").
-* ``leader_rule="authors"`` reproduces the rule coded in the authors' CSQ (original_code.md §4.1):
+* ``leader_rule="authors"`` reproduces the rule coded in the authors' CSQ (docs/algorithms.md, CSQ):
   ``a1* = argmax_{a1} max_{a2 : G1(a1,a2) <= d1} Q1(a1, a2)``, a max-max over jointly feasible pairs
   under the leader's own Q1/G1 only (fallback when no pair is feasible: the ``infeasible`` rule applied
   over all pairs), then the follower plays its constrained best response to a1*. For k levels it is

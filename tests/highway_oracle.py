@@ -2,7 +2,7 @@
 
 This module is the *reference* the JAX simulator (``envs_jax``) is compared against.  It rebuilds the
 authors' scenarios (their fork of highway-env v1.7.1, described in
-``/work/shared/reference/scenarios.md``) on top of the installed highway-env 1.12.1, by subclassing
+``docs/scenarios.md``) on top of the installed highway-env 1.12.1, by subclassing
 highway-env's own environment classes and replacing only
 
 * ``_make_vehicles``: the two controlled vehicles exactly as the authors place them, no other traffic;
@@ -11,9 +11,9 @@ highway-env's own environment classes and replacing only
   (before the rewards); rewards leader first; cost.
 
 highway-env's own ``_make_road`` is kept for all four scenarios: it is line-for-line the fork's road
-(checked against the fork's source and against the tables of scenarios.md, see ``tests/test_oracle.py``).
+(checked against the fork's source and against the lane tables of docs/scenarios.md, see ``tests/test_oracle.py``).
 The only core difference between v1.7.1 and 1.12.1 that matters here is neutralised through the
-observation config (``include_obstacles: False``, scenarios.md §1.7).
+observation config (``include_obstacles: False``, docs/parity.md).
 
 highway-env is imported here only; it must never be imported outside ``tests/``.
 
@@ -42,9 +42,9 @@ DISCRETE = {"merge": True, "roundabout": True, "intersection": False, "racetrack
 # Default longitudinal start offset of both intersection agents (the fork draws 60 + N(1, 1)).
 INTERSECTION_DEFAULT_S = 61.0
 
-# Observation config shared by every experiment (scenarios.md §1.6).  ``flatten`` of the authors'
+# Observation config shared by every experiment (docs/scenarios.md, observation).  ``flatten`` of the authors'
 # env_config.json is not a v1.7.1 (nor 1.12.1) option and is left out.  ``include_obstacles: False``
-# reproduces v1.7.1, which never observed ``road.objects`` (scenarios.md §1.7).
+# reproduces v1.7.1, which never observed ``road.objects`` (docs/parity.md).
 _OBSERVATION = {
     "type": "MultiAgentObservation",
     "observation_config": {
@@ -63,8 +63,8 @@ def _multi_action(action_config: dict) -> dict:
     return {"type": "MultiAgentAction", "action_config": action_config}
 
 
-# The authors' env_config.json files, resolved on top of each env's default config (scenarios.md
-# §2.1, §3.1, §4.1, §5.1).  ``configure`` does a shallow update, so "observation" and "action"
+# The authors' env_config.json files, resolved on top of each env's default config (docs/scenarios.md).
+# ``configure`` does a shallow update, so "observation" and "action"
 # replace the env defaults wholesale, as in the fork.
 CONFIGS = {
     "merge": {
@@ -164,7 +164,7 @@ class _TwoAgentMixin:
 
 
 class OracleMergeEnv(_TwoAgentMixin, MergeEnv):
-    """merge-v0 of the fork (scenarios.md §2)."""
+    """merge-v0 of the fork (docs/scenarios.md, merge)."""
 
     def _make_vehicles(self) -> None:
         self.controlled_vehicles = []
@@ -228,7 +228,7 @@ class OracleMergeEnv(_TwoAgentMixin, MergeEnv):
 
 
 class OracleRoundaboutEnv(_TwoAgentMixin, RoundaboutEnv):
-    """roundabout-v0 of the fork (scenarios.md §3)."""
+    """roundabout-v0 of the fork (docs/scenarios.md, roundabout)."""
 
     def _make_vehicles(self) -> None:
         self.controlled_vehicles = []
@@ -291,7 +291,7 @@ class OracleRoundaboutEnv(_TwoAgentMixin, RoundaboutEnv):
 
 
 class OracleIntersectionEnv(_TwoAgentMixin, ContinuousIntersectionEnv):
-    """intersection-v1 (ContinuousIntersectionEnv) of the fork (scenarios.md §4)."""
+    """intersection-v1 (ContinuousIntersectionEnv) of the fork (docs/scenarios.md, intersection)."""
 
     def _make_vehicles(self, n_vehicles: int = 0) -> None:
         # The fork also sets IDMVehicle.DISTANCE_WANTED/COMFORT_ACC_* (class attributes, process-wide)
@@ -389,7 +389,7 @@ class OracleIntersectionEnv(_TwoAgentMixin, ContinuousIntersectionEnv):
 
 
 class OracleRacetrackEnv(_TwoAgentMixin, RacetrackEnv):
-    """racetrack-v0 of the fork (scenarios.md §5)."""
+    """racetrack-v0 of the fork (docs/scenarios.md, racetrack)."""
 
     def _make_vehicles(self) -> None:
         self.controlled_vehicles = []

@@ -49,7 +49,7 @@ def test_default_modes():
 _OBS = {"type": "MultiAgentObservation",
         "observation_config": {"type": "Kinematics", "flatten": True, "absolute": True, "see_behind": True,
                                "normalize": False, "features": ["x", "y", "vx", "vy"], "vehicles_count": 2}}
-AUTHORS_CONFIG = {  # the keys of the authors' env_config.json files (scenarios.md §4.1, §5.1)
+AUTHORS_CONFIG = {  # the keys of the authors' env_config.json files (docs/scenarios.md)
     "intersection": {
         "simulation_frequency": 15, "policy_frequency": 1, "duration": 20, "controlled_vehicles": 2,
         "initial_vehicle_count": 0, "spawn_probability": 0, "destination": "o1", "offroad_terminal": True,

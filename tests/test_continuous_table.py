@@ -38,11 +38,11 @@ def test_table_rows(tmp_path):
     assert row["total return"] == "62.6 [61.6, 63.6]"
     assert row["greedy total"] == "67.6 [66.6, 68.6]"
     assert row["seeds x steps"] == "8 x 1,000"
-    # the authors' racetrack MACPO seeds (original_code.md §10.3): mean +- population std
+    # the authors' racetrack MACPO seeds (docs/results.md): mean +- population std
     authors = [77.24, 69.00, 78.55]
     assert row["authors' total"] == f"{statistics.mean(authors):.1f} ± {statistics.pstdev(authors):.1f}"
     cs = dict(zip([c.strip() for c in lines[0].split("|")], [c.strip() for c in lines[3].split("|")]))
-    assert cs["authors' total"] == "178.5 ± 31.4"  # as original_code.md §10.4 prints it
+    assert cs["authors' total"] == "178.5 ± 31.4"  # as the authors' records give it
     assert cs["arrival L / F or distance L"] == "1 m"
     mappo = dict(zip([c.strip() for c in lines[0].split("|")], [c.strip() for c in lines[2].split("|")]))
     assert mappo["arrival L / F or distance L"] == "arrived 1.00 / 1.00"

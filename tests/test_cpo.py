@@ -82,7 +82,7 @@ def test_gauss_newton_operator_is_the_kl_hessian_of_a_masked_minibatch():
 
 
 def reference_direction(g, b, hg, hb, c, delta, eps=1e-8):
-    """The reference's trpo_update case analysis, in plain Python floats (baselines.md §2.4)."""
+    """The reference's trpo_update case analysis, in plain Python floats (docs/algorithms.md, MACPO)."""
     q = float(g @ hg)
     if float(b @ b) <= eps and c < 0:
         hb, r, s, A, B, case = 0 * hb, 0.0, 0.0, 0.0, 0.0, 4

@@ -11,7 +11,7 @@ import envs_jax
 
 KEY = jax.random.key(0)
 
-AUTHORS_MERGE_CONFIG = {  # merge_env_result/exp1/env_config.json (scenarios.md §1.6, §2.1)
+AUTHORS_MERGE_CONFIG = {  # merge_env_result/exp1/env_config.json (docs/scenarios.md)
     "observation": {"type": "MultiAgentObservation",
                     "observation_config": {"type": "Kinematics", "flatten": True, "absolute": True,
                                            "see_behind": True, "normalize": False,
@@ -185,7 +185,7 @@ def test_continuous_action_ranges_are_params():
 
 def test_auto_reset_records_offroad_and_distance_driven():
     """Racetrack with zero steering and zero acceleration: both cars drive straight at 10 m/s off the first curve
-    (scenarios.md §5.6: off-road at step 21, x=119). The distance is the path length: 10 m/s x 0.2 s per step."""
+    (docs/scenarios.md, racetrack: off-road at step 21, x=119). The distance is the path length: 10 m/s x 0.2 s per step."""
     env = envs_jax.make("racetrack")
     w = envs_jax.AutoResetWrapper(env)
     params = env.default_params

@@ -53,7 +53,7 @@ def test_study_end_to_end_resume_and_keep(tmp_path):
     # 3. RESULTS.md: tables with IQM intervals, the authors' values, figures, GIFs, honesty and differences
     text = open(os.path.join(out, "RESULTS.md")).read()
     assert "## merge" in text and "| CSQ |" in text and "SQ (Bi-AC" in text
-    assert "56.80 ± 1.33 (n=3)" in text  # the authors' merge CSQ total return (original_code.md §10.4)
+    assert "56.80 ± 1.33 (n=3)" in text  # the authors' merge CSQ total return (docs/results.md)
     assert "![merge training curves](figures/merge_curves.png)" in text
     assert "(figures/merge_csq.gif)" in text and "(figures/merge_sq.gif)" in text
     assert "is CSQ safer than SQ?" in text and "not comparable: much shorter training" in text

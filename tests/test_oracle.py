@@ -1,4 +1,4 @@
-"""Self-checks of the highway-env oracle (tests/highway_oracle.py) against scenarios.md.
+"""Self-checks of the highway-env oracle (tests/highway_oracle.py) against docs/scenarios.md.
 
 Every figure below is a roll-out or table that the spec obtained by running the authors' own fork
 (highway-env v1.7.1 + their four env files).  Reproducing them with highway-env 1.12.1 + our
@@ -6,7 +6,7 @@ subclasses is what makes the oracle trustworthy as the reference for the JAX sim
 
 Action indices (DiscreteMetaAction): 0 LANE_LEFT, 1 IDLE, 2 LANE_RIGHT, 3 FASTER, 4 SLOWER.
 Time convention: ``state[k]`` / ``obs[k]`` is the state after k decisions (t = k), ``reward[k-1]`` etc.
-belong to decision k.  "at t=k" in scenarios.md means after the k-th decision.
+belong to decision k.  "at t=k" in docs/scenarios.md means after the k-th decision.
 """
 
 from __future__ import annotations
@@ -38,7 +38,7 @@ def _first(flags) -> int:
 
 
 # --------------------------------------------------------------------------------------------------
-# Geometry: highway-env's own _make_road must equal the tables of scenarios.md
+# Geometry: highway-env's own _make_road must equal the lane tables of docs/scenarios.md
 # --------------------------------------------------------------------------------------------------
 
 
@@ -90,7 +90,7 @@ def test_lane_order_is_graph_order():
     assert len(oracle_lanes("roundabout")) == 32 and len(oracle_lanes("intersection")) == 20
 
 
-def test_merge_geometry():  # scenarios.md §2.2
+def test_merge_geometry():  # docs/scenarios.md, lane tables
     lanes = _lane_dict("merge")
     assert len(lanes) == 9
     _check_straight(lanes["a", "b", 0], (0, 0), (230, 0), [CL, S])
@@ -113,7 +113,7 @@ def test_merge_geometry():  # scenarios.md §2.2
     assert (obstacle.LENGTH, obstacle.WIDTH, obstacle.heading, obstacle.speed, obstacle.solid) == (2, 2, 0, 0, True)
 
 
-def test_roundabout_geometry():  # scenarios.md §3.2
+def test_roundabout_geometry():  # docs/scenarios.md, lane tables
     lanes = _lane_dict("roundabout")
     ring = [("se", "ex", 66, 24), ("ex", "ee", 24, -24), ("ee", "nx", -24, -66), ("nx", "ne", -66, -114),
             ("ne", "wx", -114, -156), ("wx", "we", -156, -204), ("we", "sx", 156, 114), ("sx", "se", 114, 66)]
@@ -147,7 +147,7 @@ def test_roundabout_geometry():  # scenarios.md §3.2
     assert not make_oracle_env("roundabout").road.objects
 
 
-def test_intersection_geometry():  # scenarios.md §4.2
+def test_intersection_geometry():  # docs/scenarios.md, lane tables
     lanes = _lane_dict("intersection")
     assert len(lanes) == 20
     for c in range(4):
@@ -172,7 +172,7 @@ def test_intersection_geometry():  # scenarios.md §4.2
     assert type(make_oracle_env("intersection").road).__name__ == "RegulatedRoad"
 
 
-def test_racetrack_geometry():  # scenarios.md §5.2
+def test_racetrack_geometry():  # docs/scenarios.md, lane tables
     lanes = _lane_dict("racetrack")
     kw = dict(width=5.0, speed=10.0)
     _check_straight(lanes["a", "b", 0], (42, 0), (100, 0), [C, S], **kw)
@@ -235,7 +235,7 @@ def test_config(scenario):
         assert env.road.vehicles == env.controlled_vehicles
 
 
-INITIAL = {  # scenarios.md §2.3, §3.3, §4.3 (with the deterministic s = 61), §5.3
+INITIAL = {  # docs/scenarios.md, initial states (intersection with the deterministic s = 61)
     "merge": [[70, 4, 25, 0, 70, 14.5, 25, 0], [70, 14.5, 25, 0, 70, 4, 25, 0]],
     "roundabout": [[-45, 2, 8, 0, 2, 85, 0, -8], [2, 85, 0, -8, -45, 2, 8, 0]],
     "intersection": [[2, 50, 0, -10, -50, 2, 10, 0], [-50, 2, 10, 0, 2, 50, 0, -10]],
@@ -391,7 +391,7 @@ def test_racetrack_steering_zero():  # §5.3 / §5.6: steering 0 for both
     r = _run("racetrack", 0.0, 0.0, steps=200)
     assert r["length"] == 21  # episode over at step 21, x = 119
     assert _first(~r["on_road"][:, 0]) == 21 and r["x"][21, 0] == pytest.approx(119)
-    # scenarios.md says "both ... off-road at step 21"; both are off-road then, but the follower
+    # docs/scenarios.md says both cars drive off the first curve at step 21; both are off-road then, but the follower
     # (outer lane, y = 5) already left the road at step 18 (x = 113) and the episode waits for the leader.
     assert _first(~r["on_road"][:, 1]) == 18 and r["x"][18, 1] == pytest.approx(113)
     np.testing.assert_allclose(r["speed"], 10)

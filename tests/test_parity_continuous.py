@@ -1,7 +1,7 @@
 """Parity of envs_jax against highway-env (the oracle) on intersection and racetrack (continuous actions).
 
 Episodes, per scenario: 30 uniform-random and 10 biased-random seeded episodes, the roll-outs of
-scenarios.md §4.4 / §5.6, and for the racetrack closed-loop lane-keeping episodes: a steering
+docs/scenarios.md (intersection, racetrack), and for the racetrack closed-loop lane-keeping episodes: a steering
 controller computed from the JAX state drives both cars, the resulting actions are replayed in
 highway-env, and three of them lap the whole circuit (every section is driven by both cars) while two
 provoke the only crashes the racetrack can have (lane changes into the other car); one lap leaves
@@ -407,7 +407,7 @@ def test_racetrack_laps_cover_every_section(x64):
             # a->b, b->c, ..., i->a, then a->b again: a full lap through every section, in order
             assert roads[:n_sections + 1].tolist() == list(range(n_sections)) + [0], (k, agent, roads)
     # Lap 2 hugs the inner edge: the leader leaves the road for a while and comes back; its
-    # per-agent termination flag is recomputed every step, not latched (scenarios.md §0.3).
+    # per-agent termination flag is recomputed every step, not latched (docs/scenarios.md, termination).
     o = oracle("racetrack", index["lane_keeping2"])
     term = o["terminated"][:, 0]
     assert term[:-1].any() and not term[-2] and not o["on_road"][:, 0].all() and o["on_road"][-1, 0]
@@ -438,7 +438,7 @@ def test_out_of_range_actions_x64(scenario, x64):
 
 
 def test_documented_rollouts():
-    """scenarios.md §4.4 and §5.6, from the JAX simulator alone (float32)."""
+    """The intersection and racetrack roll-outs of docs/scenarios.md, from the JAX simulator alone (float32)."""
     fixed = make_env("intersection").default_params.replace(start_noise=0.0)
     r = run_jax("intersection", np.zeros((20, 2)), params=fixed)  # constant a = 0: crash at t = 5
     assert r["length"] == 5 and r["crashed"][5].all() and not r["crashed"][4].any()

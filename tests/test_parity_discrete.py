@@ -2,7 +2,7 @@
 
 Per policy step and per simulation substep we compare x, y, heading, speed, crashed,
 on_road and lane, plus observations, rewards, costs and termination, over seeded
-random-action episodes and the scripted roll-outs of scenarios.md §2.6 / §3.6.
+random-action episodes and the scripted roll-outs of docs/scenarios.md (merge, roundabout).
 Under x64 positions agree to 1e-6 m (merge) / 1e-3 m (roundabout, where the
 controller's 1/not_zero(speed) amplifies round-off near zero speed) with identical
 discrete events; in float32 the discrete events agree in at least 95% of episodes.
@@ -141,7 +141,7 @@ def test_parity_float32_events(scenario):
 
 
 def test_scripted_merge_rollouts():
-    """scenarios.md §2.6 figures, from the JAX simulator alone."""
+    """The merge roll-outs of docs/scenarios.md, from the JAX simulator alone."""
     r = run_jax("merge", np.tile([1, 1], (20, 1)))
     assert r["length"] == 12 and tuple(r["reward"].sum(0)) == (34.0, 9.0)
     assert first_event(r["crashed"][1:])[1] == 9  # follower hits the obstacle at t = 10
@@ -152,7 +152,7 @@ def test_scripted_merge_rollouts():
 
 
 def test_scripted_roundabout_rollouts():
-    """scenarios.md §3.6 figures, from the JAX simulator alone."""
+    """The roundabout roll-outs the authors' environment gives, from the JAX simulator alone."""
     r = run_jax("roundabout", np.tile([1, 1], (20, 1)))
     assert r["length"] == 8 and r["crashed"][-1].all()
     r = run_jax("roundabout", np.tile([3, 3], (20, 1)))

@@ -59,7 +59,7 @@ def ref_stackelberg(qs, gs, ds, infeasible="min_cost", last=False):
 
 
 def ref_authors(qs, gs, ds, infeasible="min_cost", last=True):
-    """The authors' loops (original_code.md §4.1): a_L outer, a_F inner, '>=' keeps the last maximiser.
+    """The authors' loops (docs/algorithms.md, CSQ): a_L outer, a_F inner, '>=' keeps the last maximiser.
 
     Generalised top-down: agent i scans all completions (a_i, ..., a_k) of the chosen prefix in loop order.
     """

@@ -125,6 +125,7 @@ def test_cli_run_writes_metrics_and_evaluates(tmp_path, capsys):
     assert cli.main(SMALL + ["--out", out]) == 0
     printed = capsys.readouterr().out
     assert "merge/csq x2" in printed and "steps/s" in printed and "greedy evaluation" in printed
+    assert f"run folder: {out}" in printed and f"python -m train.render --checkpoint {out}" in printed
     assert sorted(f for f in os.listdir(out) if f != ".lock") == ["checkpoints", "config.json", "episodes.csv",
                                                                   "eval.csv", "learner.csv", "summary.json"]
     with open(os.path.join(out, "episodes.csv")) as f:

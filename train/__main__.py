@@ -152,7 +152,11 @@ def main(argv=None) -> int:
         out = args.out or os.path.join("runs", f"{cfg['scenario']}_{cfg['algo']}")
         from train.run import run
 
-        run(cfg, out, resume=args.resume, overwrite=args.overwrite, verbose=not args.quiet)
+        res = run(cfg, out, resume=args.resume, overwrite=args.overwrite, verbose=not args.quiet)
+        if not args.quiet and res["summary"]["finished"]:
+            from train.next_steps import next_steps
+
+            print(next_steps(out, cfg))
     except ValueError as e:  # bad input, a refused run folder, no valid checkpoint
         print(f"error: {e}", file=sys.stderr)
         return 2

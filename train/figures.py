@@ -5,7 +5,7 @@ rate and the leader's and follower's arrival rate (racetrack: crash rate, off-ro
 leader and the follower). Each algorithm is one line: episodes are binned by the env step at which they ended
 (``end_step`` of ``episodes.csv``), each seed's episodes in a bin are averaged, and the line is the mean over seeds
 with a 95% bootstrap band across seeds. The authors' recorded values (last 10% of training, one marker per seed,
-original_code.md §10.3) sit at the right edge, clearly labelled with their own training budget. When the runs'
+docs/results.md) sit at the right edge, clearly labelled with their own training budget. When the runs'
 budgets are 4x apart or more (the quick study's MADDPG vs MAPPO-L) the step axis is logarithmic; runs whose envs
 stepped fewer than 5 episode limits each (512 parallel envs) are named in red under the title, since their
 finished episodes over-represent the short (crashed) ones.
@@ -83,32 +83,37 @@ def load_run(run_dir: str) -> dict | None:
     return {"dir": run_dir, "config": config, "summary": summary, "episodes": cols, "log": log, "learner": learner}
 
 
-def per_seed_series(run: dict, field: str) -> list[tuple[np.ndarray, np.ndarray]]:
-    """Per seed: ``(end_step, value)`` of its episodes in order."""
+def per_seed_series(run: dict, field: str) -> list[tuple[np.ndarray, ...]]:
+    """Per seed: ``(end_step, value)`` of its episodes in order, plus their weights where the run has them
+    (binned records, :mod:`train.records`: each row stands for the episodes of one bin)."""
     ep = run["episodes"]
     out = []
     for s in range(int(run["config"]["num_seeds"])):
         m = ep["seed"] == s
         order = np.argsort(ep["episode"][m], kind="stable")
-        out.append((ep["end_step"][m][order], ep[field][m][order]))
+        item = (ep["end_step"][m][order], ep[field][m][order])
+        out.append(item + (ep["weight"][m][order],) if "weight" in ep else item)
     return out
 
 
-def binned_curve(series: list[tuple[np.ndarray, np.ndarray]], total_steps: int, n_bins: int = 20,
+def binned_curve(series: list[tuple[np.ndarray, ...]], total_steps: int, n_bins: int = 20,
                  reps: int = 2000, seed: int = 0):
     """Bin centres ``[B]``, mean over seeds ``[B]`` and its 95% bootstrap band ``[B]``, ``[B]`` across seeds.
 
     Bin b holds the episodes that ended in ``(b * w, (b + 1) * w]`` env steps, ``w = total_steps / n_bins``; a
-    seed contributes the mean of its episodes in the bin (no episode: no contribution). NaN where no seed has one.
+    seed contributes the mean of its episodes in the bin (weighted, where a series has a third array of weights;
+    no episode: no contribution). NaN where no seed has one.
     """
     edges = np.linspace(0, total_steps, n_bins + 1)
     per_seed = np.full((len(series), n_bins), np.nan)
-    for i, (steps, values) in enumerate(series):
+    for i, item in enumerate(series):
+        steps, values = item[0], item[1]
+        weights = item[2] if len(item) > 2 else np.ones_like(values)
         b = np.clip(np.searchsorted(edges, steps, side="left") - 1, 0, n_bins - 1)
         for j in range(n_bins):
-            sel = b == j
+            sel = (b == j) & (weights > 0)
             if sel.any():
-                per_seed[i, j] = values[sel].mean()
+                per_seed[i, j] = np.average(values[sel], weights=weights[sel])
     mean, lo, hi = (np.full(n_bins, np.nan) for _ in range(3))
     for j in range(n_bins):
         col = per_seed[:, j][np.isfinite(per_seed[:, j])]
@@ -146,8 +151,13 @@ def scenario_panels(scenario: str) -> list[tuple[str, str]]:
     return RETURN_PANELS + EVENT_PANELS.get(scenario, EVENT_PANELS["default"])
 
 
-def plot_scenario(scenario: str, runs: dict[str, dict], out_base: str, n_bins: int = 20) -> list[str]:
-    """Draw one scenario's figure from ``{algo: load_run(...)}``; writes ``out_base.png`` and ``out_base.pdf``."""
+def plot_scenario(scenario: str, runs: dict[str, dict], out_base: str, n_bins: int = 20,
+                  formats: tuple[str, ...] = ("png", "pdf")) -> list[str]:
+    """Draw one scenario's figure from ``{algo: load_run(...)}``; writes ``out_base.<format>`` for each of
+    ``formats``. Runs without episodes (``run["episodes"] is None``) are left out."""
+    runs = {a: r for a, r in runs.items() if r.get("episodes") is not None}
+    if not runs:
+        return []
     import matplotlib
 
     matplotlib.use("Agg")
@@ -218,7 +228,7 @@ def plot_scenario(scenario: str, runs: dict[str, dict], out_base: str, n_bins: i
     fig.tight_layout(rect=(0, 0.035 * n_rows_legend + 0.02, 1, 0.95))
     os.makedirs(os.path.dirname(os.path.abspath(out_base)), exist_ok=True)
     paths = []
-    for ext in ("png", "pdf"):
+    for ext in formats:
         path = f"{out_base}.{ext}"
         fig.savefig(path, dpi=110)
         paths.append(path)

@@ -1,6 +1,6 @@
 """The authors' recorded results and the paper's claims, as reference points for our figures and RESULTS.md.
 
-Numbers: ``../shared/reference/original_code.md`` §10.3 (per-run statistics of the shipped ``.npy`` records: mean
+Numbers: the authors' shipped records (docs/results.md; per-run statistics of the shipped ``.npy`` records: mean
 over the last ceil(10%) of each seed's training episodes; returns include rewards earned after an agent's own
 termination, as in our episode returns). One value per authors' seed; ``None`` where the record is missing.
 """
@@ -100,7 +100,7 @@ PAPER_CLAIMS = {
                  "(paper, racetrack section).",
 }
 
-# Known differences between the paper's text and the authors' code (original_code.md §4-§11), and which side the
+# Known differences between the paper's text and the authors' code (docs/algorithms.md), and which side the
 # shipped configurations follow. Keys whose value in our run config tells which side is used are checked by
 # train.report against the runs' config.json.
 CODE_DIFFERENCES = [
@@ -118,17 +118,18 @@ CODE_DIFFERENCES = [
      "Only an agent's own termination stops bootstrapping (paper); the authors also cut at the time limit."),
     (None, None,
      "The cost thresholds are as the authors ran them (d = 5 for CSQ, d = 1 on the racetrack), at or above the "
-     "largest possible discounted cost, so the constraints are nearly inactive (original_code.md §8.3)."),
+     "largest possible discounted cost, so the constraints are nearly inactive (docs/algorithms.md, 'Why the "
+     "authors' thresholds barely bind')."),
     (None, None,
      "The unconstrained baselines are the authors': 'Bi-AC' in merge / roundabout is CSQ with d = 100 and an "
      "exploration floor of 0.05 (our `sq`); on the continuous scenarios it is Stackelberg MADDPG without a cost "
      "critic (our `s-maddpg`)."),
     (None, None,
-     "Rewards, costs and termination are the authors' coded ones (scenarios.md), e.g. the roundabout's +5 on every "
+     "Rewards, costs and termination are the authors' coded ones (docs/scenarios.md), e.g. the roundabout's +5 on every "
      "step on the exit road and merge's one-shot arrival bonus."),
     (None, None,
      "The authors' MACPO / MAPPO-L code is not shipped; our implementations follow the published algorithms "
-     "(baselines.md), so their reference numbers are not like-for-like."),
+     "(docs/algorithms.md), so their reference numbers are not like-for-like."),
 ]
 
 
@@ -139,7 +140,7 @@ def authors_values(scenario: str, algo: str, field: str) -> list[float]:
 
 
 def authors_summary(scenario: str, algo: str, field: str) -> tuple[float, float, int] | None:
-    """``(mean, std, n)`` over the authors' seeds (population std, ddof=0, as original_code.md §10.4), or None."""
+    """``(mean, std, n)`` over the authors' seeds (population std, ddof=0), or None."""
     v = authors_values(scenario, algo, field)
     if not v:
         return None

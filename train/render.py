@@ -104,7 +104,7 @@ _POSITION_FNS: dict[int, tuple] = {}  # id(lane table) -> (table, jitted positio
 def _lane_points(lanes, idx: np.ndarray, s: np.ndarray, lat: np.ndarray):
     """World positions of (s, lat) on lanes ``idx`` (broadcast), evaluated by the simulator's own
     ``envs_jax.lanes.position``, jitted once per lane table on inputs padded to a power of two (at least 256):
-    op-by-op evaluation compiled a small program per operation and per lane length, ~10 s per road."""
+    op-by-op evaluation would compile a small program per operation and per lane length."""
     from envs_jax import lanes as L
 
     idx, s, lat = np.broadcast_arrays(np.asarray(idx, np.int32), np.asarray(s, np.float64),

@@ -2,11 +2,13 @@
 numbers, and the known paper-vs-code differences.
 
 Every number of a run is first reduced to one value per seed: the mean over the last ceil(10%) of that seed's
-training episodes (original_code.md §10.3, the same window as summary.json), or the mean over its greedy
-evaluation episodes. Across seeds we report the inter-quartile mean (IQM) with a 95% stratified bootstrap interval
+training episodes (the window of the authors' records, docs/results.md, and of summary.json), or the mean over
+its greedy evaluation episodes. Across seeds we report the inter-quartile mean (IQM) with a 95% stratified bootstrap interval
 (:mod:`jaxsmarl.stats`). Comparisons say "higher" / "lower" only when the two intervals do not overlap.
 
-``python -m train.report STUDY_DIR`` rewrites RESULTS.md from the run folders.
+``python -m train.report STUDY_DIR`` rewrites RESULTS.md from the run folders;
+``python -m train.report --from benchmarks/results/training --out docs/results`` writes RESULTS.md and the PNG
+curves from the committed training records (:mod:`train.records`), keeping the GIFs already in ``OUT/figures``.
 """
 
 from __future__ import annotations
@@ -30,6 +32,11 @@ EVENT_FIELDS = {"crash", "offroad", "leader_arrived", "follower_arrived"}
 def final_per_seed(run: dict, field: str, frac: float = 0.1) -> list[float]:
     """Per seed: the mean of ``field`` over its last ceil(frac * n) training episodes (``cost`` = leader_cost +
     follower_cost)."""
+    final = run.get("final")  # committed records: summary.json's per-seed means over the same last-10% window
+    if final is not None and frac == 0.1:
+        if field == "cost":
+            return [a + b for a, b in zip(final["leader_cost"], final["follower_cost"])]
+        return list(final[field])
     log = run["log"]
     if field == "cost":
         per_seed = [a + b for a, b in zip(log.per_seed("leader_cost"), log.per_seed("follower_cost"))]
@@ -128,7 +135,7 @@ def _scenario_section(scenario: str, runs: dict[str, dict], study: dict, study_d
         unfinished = "" if (run.get("summary") or {}).get("finished") else " (unfinished)"
         lines.append(f"| {label(algo)}{unfinished} | {_budget(run)} | " + " | ".join(cells) + " |")
     lines += ["", "Greedy evaluation of the final policies (IQM over seeds of the per-seed mean), the authors' "
-              "recorded training values (last 10%, mean ± std over their seeds, original_code.md §10.3) and the "
+              "recorded training values (last 10%, mean ± std over their seeds) and the "
               "run's time:", "",
               "| algorithm | greedy: return total | greedy: crash rate | greedy: seeds with a crash | "
               "authors: return total | authors: crash rate | authors' run | time |",
@@ -151,16 +158,33 @@ def _scenario_section(scenario: str, runs: dict[str, dict], study: dict, study_d
             st = ((study or {}).get("runs", {}).get(f"{scenario}_{a}") or {})
             reasons.append(f"{label(a)} ({st.get('reason') or 'not run in this study'})")
         lines += ["", "Not in this study: " + "; ".join(reasons) + "."]
+    no_curve = [label(a) for a, r in runs.items() if "episodes" in r and r["episodes"] is None]
+    if no_curve:
+        lines += ["", f"No training curve for {', '.join(no_curve)}: the record holds no episodes."]
     fig = os.path.join("figures", f"{scenario}_curves.png")
     if os.path.exists(os.path.join(study_dir, fig)):
-        lines += ["", f"![{scenario} training curves]({fig})  ",
-                  f"(PDF: [figures/{scenario}_curves.pdf](figures/{scenario}_curves.pdf))"]
-    gifs = [(a, os.path.join("figures", f"{scenario}_{a}.gif")) for a in runs]
+        lines += ["", f"![{scenario} training curves]({fig})"]
+        if os.path.exists(os.path.join(study_dir, "figures", f"{scenario}_curves.pdf")):
+            lines[-1] += "  "
+            lines.append(f"(PDF: [figures/{scenario}_curves.pdf](figures/{scenario}_curves.pdf))")
+    gif_info = (study or {}).get("gifs")  # records mode: {name: how its policy was trained}
+    algos = list(runs) if gif_info is None else [a for a in runs if f"{scenario}_{a}" in gif_info]
+    gifs = [(a, os.path.join("figures", f"{scenario}_{a}.gif")) for a in algos]
     gifs = [(a, g) for a, g in gifs if os.path.exists(os.path.join(study_dir, g))]
     if gifs:
-        lines += ["", "Greedy episode of seed 0 (green: leader, blue: follower, red: crashed):", "",
-                  "| " + " | ".join(label(a) for a, _ in gifs) + " |", "|" + "---|" * len(gifs),
+        head = ("Greedy episode of seed 0 (green: leader, blue: follower, red: crashed):" if gif_info is None else
+                "Greedy episode of a policy trained for the picture, not of the recorded runs above (green: leader, "
+                "blue: follower, red: crashed):")
+        lines += ["", head, "", "| " + " | ".join(label(a) for a, _ in gifs) + " |", "|" + "---|" * len(gifs),
                   "| " + " | ".join(f"![{scenario} {a}]({g})" for a, g in gifs) + " |"]
+        if gif_info is not None:
+            lines += [""] + [f"- {label(a)}: {gif_info[f'{scenario}_{a}']}" for a, _ in gifs]
+    if gif_info is not None:
+        absent = [a for a in runs if not any(a == g for g, _ in gifs)]
+        reasons = (study or {}).get("no_gif", {})
+        if absent:
+            lines += ["", "No GIF for " + "; ".join(
+                f"{label(a)} ({reasons.get(f'{scenario}_{a}', 'no trained policy at hand')})" for a in absent) + "."]
     return lines + [""]
 
 
@@ -270,22 +294,29 @@ def _differences(all_runs: dict[str, dict[str, dict]]) -> list[str]:
             continue
         side = "the paper" if used == [json.dumps(paper_value)] else "mixed / the authors' code"
         out.append(f"- {text} Our runs: `{key}` = {', '.join(used)} ({side}).")
-    return out + ["", "Details: `../shared/reference/original_code.md` §4-§11 and `scenarios.md`.", ""]
+    return out + ["", "Details: [docs/algorithms.md](../algorithms.md) and [docs/scenarios.md](../scenarios.md) in the "
+                      "repository.", ""]
 
 
-def render_report(study_dir: str, study: dict | None = None) -> str:
-    all_runs = study_runs(study_dir)
+def render_report(study_dir: str, study: dict | None = None, all_runs: dict | None = None) -> str:
+    """RESULTS.md's text for the run folders of ``study_dir`` (or for ``all_runs``, e.g. committed records)."""
+    all_runs = study_runs(study_dir) if all_runs is None else all_runs
     quick = bool((study or {}).get("quick"))
-    now = datetime.datetime.now().strftime("%Y-%m-%d %H:%M")
     budgets = (study or {}).get("budgets", "quick" if quick else "default")
     kind = {"quick": "quick budgets, far shorter than the authors': a smoke test, not a reproduction",
             "custom": "budgets set on the command line; compare them with the authors' below",
             "default": "the authors' budgets"}.get(budgets, budgets)
-    lines = ["# Results: the paper's experiments, reproduced", "",
-             f"Generated by `python -m train.experiments{' --quick' if quick else ''}` on {now} ({kind}).",
+    if study and study.get("command"):  # committed records: no date, so that a regeneration changes nothing
+        origin = f"Generated by `{study['command']}` ({kind})."
+    else:
+        now = datetime.datetime.now().strftime("%Y-%m-%d %H:%M")
+        origin = f"Generated by `python -m train.experiments{' --quick' if quick else ''}` on {now} ({kind})."
+    lines = ["# Results: the paper's experiments, reproduced", "", origin,
              "Per run: IQM across seeds with 95% stratified bootstrap intervals (jaxsmarl.stats); per seed: the mean "
              "over its last 10% of training episodes. The authors' numbers are their shipped records "
-             "(3 seeds, original_code.md §10). Figures: mean over seeds with a 95% bootstrap band.", ""]
+             "(3 seeds). Figures: mean over seeds with a 95% bootstrap band.", ""]
+    if study and study.get("preamble"):
+        lines += list(study["preamble"]) + [""]
     if not all_runs:
         lines += ["No run has produced episodes yet.", ""]
     for scenario, runs in all_runs.items():
@@ -309,13 +340,74 @@ def write_report(study_dir: str, study: dict | None = None) -> str:
     return out
 
 
+def _atomic_write(path: str, text: str) -> None:
+    with open(path + ".tmp", "w") as f:
+        f.write(text)
+    os.replace(path + ".tmp", path)
+
+
+RECORDS_COMMAND = "python -m train.report --from benchmarks/results/training --out docs/results"
+
+
+def write_records_report(records_dir: str, out: str, table: dict | None = None, n_bins: int = 20) -> dict:
+    """RESULTS.md and ``figures/<scenario>_curves.png`` in ``out`` from committed training records
+    (:mod:`train.records`). GIFs are not rendered (records hold no checkpoints): those listed in
+    ``out/figures/gifs.json`` (``{"gifs": {name: how it was trained}, "no_gif": {name: why not}}``) are embedded.
+    Returns ``{"report": path, "figures": [paths]}``."""
+    from train import figures, records
+
+    all_runs = records.load_records(records_dir, table)
+    fig_dir = os.path.join(out, "figures")
+    os.makedirs(fig_dir, exist_ok=True)
+    paths = []
+    for scenario, runs in all_runs.items():
+        paths += figures.plot_scenario(scenario, runs, os.path.join(fig_dir, f"{scenario}_curves"), n_bins,
+                                       formats=("png",))
+    gif_path = os.path.join(fig_dir, "gifs.json")
+    gif_meta = {}
+    if os.path.exists(gif_path):
+        with open(gif_path) as f:
+            gif_meta = json.load(f)
+    missing = records.missing(records_dir, table)
+    study = {"budgets": "committed training records; budgets per row", "command": RECORDS_COMMAND,
+             "runs": {k: {"reason": v} for k, v in missing.items()},
+             "gifs": gif_meta.get("gifs", {}), "no_gif": gif_meta.get("no_gif", {}),
+             "preamble": [f"Source: the run records committed in `{os.path.relpath(records_dir)}` (one folder per "
+                          "row: config, summary with per-seed last-10% means and the greedy evaluation, and binned "
+                          "episode means for the curves); which folder stands for which row is "
+                          "`train.records.RECORDS`. Other runs there (other budgets, the authors' coded options) "
+                          "are discussed in [docs/results.md](../results.md)."]
+                         + ([f"Not recorded: {', '.join(sorted(missing))}."] if missing else [])}
+    path = os.path.join(out, "RESULTS.md")
+    _atomic_write(path, render_report(out, study, all_runs))
+    return {"report": path, "figures": paths}
+
+
 def main(argv=None) -> int:
-    args = list(sys.argv[1:] if argv is None else argv)
-    if len(args) != 1 or not os.path.isdir(os.path.join(args[0], "runs")):
-        print("usage: python -m train.report STUDY_DIR\nerror: STUDY_DIR must be a folder written by "
-              "python -m train.experiments (with runs/)", file=sys.stderr)
+    import argparse
+
+    p = argparse.ArgumentParser(prog="python -m train.report", description="Rewrite a study's RESULTS.md, or "
+                                "write RESULTS.md and the curves from committed training records.")
+    p.add_argument("study_dir", nargs="?", help="folder written by python -m train.experiments (with runs/)")
+    p.add_argument("--from", dest="records", metavar="RECORDS_DIR",
+                   help="committed record folders, e.g. benchmarks/results/training (needs --out)")
+    p.add_argument("--out", help="with --from: the folder for RESULTS.md and figures/, e.g. docs/results")
+    args = p.parse_args(argv)
+    if args.records:
+        if args.study_dir or not args.out:
+            print("error: --from RECORDS_DIR takes --out OUT_DIR and no STUDY_DIR", file=sys.stderr)
+            return 2
+        if not os.path.isdir(args.records):
+            print(f"error: --from {args.records}: no such folder", file=sys.stderr)
+            return 2
+        res = write_records_report(args.records, args.out)
+        print("\n".join([res["report"]] + res["figures"]))
+        return 0
+    if not args.study_dir or not os.path.isdir(os.path.join(args.study_dir, "runs")):
+        print("usage: python -m train.report STUDY_DIR | --from RECORDS_DIR --out OUT_DIR\nerror: STUDY_DIR must be "
+              "a folder written by python -m train.experiments (with runs/)", file=sys.stderr)
         return 2
-    print(write_report(args[0]))
+    print(write_report(args.study_dir))
     return 0
 
 

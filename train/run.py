@@ -39,13 +39,11 @@ __all__ = ["run", "restore_run", "evaluate_checkpoint", "use_all_cpu_cores", "se
 
 
 # XLA:CPU flags for the training programs. YNNPACK's "reduce" fusions run the reductions over the batch axis of
-# small networks' backward passes (LayerNorm scale/bias and bias gradients: sum over 512 samples of 64 features)
-# about 50x slower than XLA's own loop emitter (~1 ms instead of ~20 us per call); without them the MAPPO-L
-# update is 2-3x faster (benchmarks/train_onpolicy.py). Numerics are unchanged up to summation order.
+# small networks' backward passes (LayerNorm scale/bias and bias gradients) far slower than XLA's own loop
+# emitter. Numerics are unchanged up to summation order.
 # The concurrency-optimised scheduler orders a program's kernels for running independent ones side by side on the
 # intra-op threads; each seed shard runs on one core, and the default order keeps a network's activations in
-# cache: the MAPPO-L update alone 3-10% faster on one core, whole 8-seed chunks +3% (median of 9 alternating
-# pairs, -3% to +9%), merge CSQ with one seed +10-20%. The order of the kernels changes, not what they compute.
+# cache. The order of the kernels changes, not what they compute. Measurements: docs/performance.md.
 XLA_CPU_FLAGS = ("--xla_cpu_experimental_ynn_fusion_type=-reduce",
                  "--xla_cpu_enable_concurrency_optimized_scheduler=false")
 # The first jaxlib that knows both flags (the YNNPACK one is the newer; its fusions are on by default from 0.10.2);
@@ -117,10 +115,9 @@ def seed_parallel(fn, num_seeds: int, in_axes=0, donate_argnums=(), sequential: 
     all-reduce over devices in its condition at every trip; seeds are independent, so nothing should cross
     devices (and an XLA:CPU collective parks a thread of the 2-thread intra-op pool while it waits).
 
-    ``sequential``: a device runs its seeds one after another (:func:`seed_loop`) instead of batched. The
-    MAPPO-L / MACPO training chunks take 14-18% less CPU time per env step so on XLA:CPU (8 seeds on 2 devices):
-    the batched update runs slower than the same work seed by seed (advantage preparation ~2x, the minibatch
-    steps ~15%); the rollout costs the same either way.
+    ``sequential``: a device runs its seeds one after another (:func:`seed_loop`) instead of batched: on XLA:CPU
+    the batched update runs slower than the same work seed by seed, and the rollout costs the same either way
+    (docs/performance.md).
     """
     sharding = seed_sharding(num_seeds)
     vfn = seed_loop(fn, in_axes) if sequential else jax.vmap(fn, in_axes=in_axes)

@@ -1,4 +1,4 @@
-"""intersection-v1 (``ContinuousIntersectionEnv``) as the authors coded it (scenarios.md §4).
+"""intersection-v1 (``ContinuousIntersectionEnv``) as the authors coded it (docs/scenarios.md, intersection).
 
 A four-way junction: for each corner an approach lane, a right turn, a left
 turn, a straight crossing and an exit lane (20 lanes), built with highway-env's
@@ -94,7 +94,7 @@ class Intersection(ContinuousScenario, Scenario):
     simulation_frequency = 15
     policy_frequency = 1
     params_cls = IntersectionParams
-    # Keys of the authors' env_config.json that the multi-agent step never reads (scenarios.md §4.1).
+    # Keys of the authors' env_config.json that the multi-agent step never reads (docs/scenarios.md, 'Where we follow the authors' code').
     inert_config_keys = frozenset({"arrived_reward", "collision_reward", "high_speed_reward", "on_road_reward",
                                    "first_arrive_reward", "second_arrive_reward", "reward_speed_range",
                                    "destination", "initial_vehicle_count", "spawn_probability"})

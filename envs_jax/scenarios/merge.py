@@ -1,4 +1,4 @@
-"""merge-v0 as the authors coded it (scenarios.md §2).
+"""merge-v0 as the authors coded it (docs/scenarios.md, merge).
 
 A two-lane highway (a->b->c->d) joined by a ramp (j->k->b) whose merge lane
 (b->c, id 2) ends at a 2x2 m obstacle at (310, 8). The leader drives on the

@@ -1,4 +1,4 @@
-"""racetrack-v0 as the authors coded it (scenarios.md §5).
+"""racetrack-v0 as the authors coded it (docs/scenarios.md, racetrack).
 
 A two-lane circuit (width 5 m, nine sections a->b->...->i->a, 18 lanes) built
 with highway-env's exact constructors, including the small joint mismatches of
@@ -96,7 +96,7 @@ class Racetrack(ContinuousScenario, Scenario):
     simulation_frequency = 15
     policy_frequency = 5
     params_cls = RacetrackParams
-    # Keys of the authors' env_config.json that the multi-agent step never reads (scenarios.md §5.1).
+    # Keys of the authors' env_config.json that the multi-agent step never reads (docs/scenarios.md, 'Where we follow the authors' code').
     inert_config_keys = frozenset({"other_vehicles", "speed_limit", "terminate_off_road"})
 
     def __init__(self, action_mode: str | None = None):

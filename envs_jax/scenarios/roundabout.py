@@ -1,4 +1,4 @@
-"""roundabout-v0 as the authors coded it (scenarios.md §3).
+"""roundabout-v0 as the authors coded it (docs/scenarios.md, roundabout).
 
 A two-lane ring (radii 20 and 24 m, eight arcs) with four single-lane sine
 access and exit roads. The leader enters from the west at (-45, 2), the

@@ -15,7 +15,7 @@ elementwise, so this equals one optimizer per critic as the authors had).
 * Loss: ``sum_i mean_B (Q_i(s, a) - y_i)^2 + (G_i(s, a) - g_i)^2``; soft target update
   ``theta' <- (1 - tau) theta' + tau theta`` every ``target_update_every`` updates (authors: tau 0.01 / 10).
 
-Options reproducing the authors' code (original_code.md §4): ``leader_rule="authors"``, ``infeasible="argmax"``,
+Options reproducing the authors' code (docs/algorithms.md, CSQ): ``leader_rule="authors"``, ``infeasible="argmax"``,
 ``td_action_state="current"`` + ``td_action_noise=True`` (their target actions come from s with exploration),
 ``bootstrap_on_truncation=False`` (their t_i includes the time limit), ``terminal_mask="batch_mean"`` (their
 targets bootstrap every transition with the discount scaled by the batch's done fraction, :mod:`jaxsmarl.bootstrap`).
@@ -41,7 +41,7 @@ Q, G = 0, 1  # kind axis of the stacked critics
 
 @dataclasses.dataclass(frozen=True)
 class CSQConfig:
-    """Static CSQ hyper-parameters (defaults: the authors' merge CSQ run, original_code.md §8)."""
+    """Static CSQ hyper-parameters (defaults: the authors' merge CSQ run, docs/algorithms.md)."""
 
     num_actions: tuple[int, ...] = (5, 5)
     obs_dim: int = 8

@@ -1,4 +1,4 @@
-"""MACPO (Gu et al. 2023; baselines.md §2.4): a constrained trust-region step of one agent per minibatch.
+"""MACPO (Gu et al. 2023; docs/algorithms.md, MACPO): a constrained trust-region step of one agent per minibatch.
 
 For each of ``num_minibatches`` minibatches (one pass, no epochs), agent i:
 
@@ -8,7 +8,7 @@ For each of ``num_minibatches`` minibatches (one pass, no epochs), agent i:
    (the network and ``log_std``);
 4. ``H^-1 g``, ``H^-1 b`` by conjugate gradient with products by the Hessian of the mean KL at the current
    parameters (damping 0.1), computed as ``J^T H_out J`` (:func:`jaxsmarl.cpo.gauss_newton_operator`: the same
-   matrix, ~35% less MACPO update time than differentiating the KL's gradient forward-mode; on XLA:CPU the
+   matrix, cheaper than differentiating the KL's gradient forward-mode; on XLA:CPU the
    ``J^T`` products make their weight gradients from transposed layer inputs, :func:`jaxsmarl.ppo_common.mlp_rows`);
 5. the CPO direction (:func:`jaxsmarl.cpo.cpo_direction`);
 6. the line search (:func:`jaxsmarl.cpo.line_search`): accept a candidate if ``KL < delta``, the reward loss

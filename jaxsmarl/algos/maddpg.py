@@ -8,7 +8,7 @@ Two agents, deterministic actors bounded by ``max_action * tanh``:
   ``G_i(s, a1, a2)``, stacked as ``[2 agents, K kinds]`` (acting and evaluation: batched einsums over the
   stack; the update, on XLA:CPU: each network alone in the column layout of :mod:`jaxsmarl.columns`).
   ``critic_input="joint"``: ``s = [o1, o2]`` (paper: the global state); ``"own"``: ``s = o_i`` (the authors'
-  critics, original_code.md §3).
+  critics, docs/algorithms.md).
 * Critic targets (Alg. 2, critic / cost-critic updates): ``y_i = r_i + gamma (1 - t_i) Q_i^targ(s', a1', a2')``,
   ``g_i = c_i + gamma (1 - t_i) G_i^targ(s', a1', a2')`` with ``a1' = mu1^targ(o1')``, ``a2' = mu2^targ(o2', a1')``.
   Algorithm 2 prints ``a1' = mu1(s)``; we use the target actors at s', as the paper's text equations and the
@@ -58,7 +58,7 @@ LEADER, FOLLOWER = 0, 1
 
 @dataclasses.dataclass(frozen=True)
 class MADDPGConfig:
-    """Static hyper-parameters (defaults: the authors' intersection CS-MADDPG run, original_code.md §8)."""
+    """Static hyper-parameters (defaults: the authors' intersection CS-MADDPG run, docs/algorithms.md)."""
 
     action_dim: int = 1  # per agent
     obs_dim: int = 8

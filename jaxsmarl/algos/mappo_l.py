@@ -1,4 +1,4 @@
-"""MAPPO-Lagrangian (Gu et al. 2023; baselines.md §2.3): the PPO-clip update of one agent on the hybrid
+"""MAPPO-Lagrangian (Gu et al. 2023; docs/algorithms.md, MAPPO-L): the PPO-clip update of one agent on the hybrid
 advantage ``A_r - lambda A_c`` with a per-minibatch projected update of the multiplier.
 
 For ``ppo_epochs`` epochs x ``num_minibatches`` minibatches (a fresh random partition per epoch), agent i:

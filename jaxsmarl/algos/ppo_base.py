@@ -1,4 +1,4 @@
-"""The part of MAPPO-L and MACPO that does not depend on the actor update (baselines.md §2.2).
+"""The part of MAPPO-L and MACPO that does not depend on the actor update (docs/algorithms.md, MAPPO-L and MACPO).
 
 Per agent i: a Gaussian actor ``pi_i(a | o_i)`` and a centralised reward critic ``V_i(s)`` and cost critic
 ``V^c_i(s)`` on the shared observation ``s = concat(o_1, ..., o_n)`` (normalised). All agents' networks are
@@ -44,7 +44,7 @@ R, C = 0, 1  # kind axis of the critics: reward, cost
 
 @dataclasses.dataclass(frozen=True)
 class PPOConfig:
-    """Static hyper-parameters (defaults: MACPO-repo Ant-2x4 scripts, baselines.md §2.6)."""
+    """Static hyper-parameters (defaults: the MACPO repository's Ant-2x4 scripts, docs/algorithms.md)."""
 
     n_agents: int = 2
     obs_dim: int = 8
@@ -243,7 +243,7 @@ class PPOBase(abc.ABC):
                       logp=flat(traj.logp), adv=adv_f, target=jnp.moveaxis(flat(target), -1, 1),
                       old_value=jnp.moveaxis(flat(old_value), -1, 1), active=active_f)
 
-        # J_c over the episodes that ended in this rollout (baselines.md §2.2, aver_episode_costs).
+        # J_c over the episodes that ended in this rollout (the reference's aver_episode_costs).
         ended = traj.ep_returned.astype(v.dtype)  # [T, E]
         n_ended = jnp.sum(ended)
         ep_cost = traj.ep_cost.astype(v.dtype)  # [T, E, N]
@@ -282,8 +282,8 @@ class PPOBase(abc.ABC):
     def critics_for_loop(self, critic, opt):
         """Agent i's stacked ``[2, ...]`` critics and optimiser states in the form :meth:`critic_step` carries
         through the minibatch loop: with ``self.columns`` tuples of the two, each as :class:`pc.Flat` vectors
-        (taking each critic out of the stack and stacking the new ones back at every step cost ~5% of the update
-        on XLA:CPU, per-array Adam steps ~5% more), otherwise the stacked trees themselves.
+        (taking each critic out of the stack and stacking the new ones back at every step, and per-array Adam
+        steps, cost time on XLA:CPU), otherwise the stacked trees themselves.
         :meth:`critics_from_loop` is the inverse."""
         if not self.columns:
             return critic, opt

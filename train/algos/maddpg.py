@@ -6,7 +6,7 @@
 * ``c-maddpg``: constrained MADDPG without the leader/follower structure (each actor on its own observation);
 * ``maddpg``: plain MADDPG.
 
-Defaults are the authors' effective hyper-parameters (original_code.md §8.2); per-scenario values (threshold,
+Defaults are the authors' effective hyper-parameters (docs/algorithms.md); per-scenario values (threshold,
 budget) are in ``train/configs/<scenario>_<algo>.json``.
 """
 
@@ -159,8 +159,8 @@ def make_train(config: dict, env=None):
 
     env = make_env(config["scenario"]) if env is None else env
     trainer = make_offpolicy_train(config, env, make_agent(config, env[0]))
-    # 8 seeds on the 2-core CPU: ~8% more env steps/s with each device's seeds run one after another (CSQ: no
-    # difference, so it keeps them batched)
+    # on the CPU each device's seeds run one after another, which is faster there (CSQ gains nothing, so it keeps
+    # them batched; docs/performance.md)
     return trainer._replace(seeds_in_sequence=jax.default_backend() == "cpu")
 
 

@@ -1,6 +1,6 @@
 """MAPPO-L and MACPO (Gu et al. 2023), the paper's on-policy safe-MARL baselines for the continuous scenarios.
 
-Defaults: the MACPO-repo Ant-2x4 scripts (baselines.md §2.6), adapted to vectorised rollouts: instead of
+Defaults: the MACPO repository's Ant-2x4 scripts (docs/algorithms.md, MAPPO-L and MACPO), adapted to vectorised rollouts: instead of
 16 processes x 1000 steps per update, ``num_envs`` envs x ``rollout_length`` steps (set per scenario in
 ``train/configs/<scenario>_<algo>.json``); the 40 minibatches then hold proportionally more samples.
 """
