@@ -30,6 +30,7 @@ episode ended raises :class:`ResetNeeded` (a ``ValueError`` and ``gymnasium.erro
 
 from __future__ import annotations
 
+import weakref
 from typing import Callable
 
 import gymnasium
@@ -98,6 +99,18 @@ def require_partner(spec: AgentSpec, partner_policy) -> None:
                          f"got {partner_policy!r}")
 
 
+_COMPILED: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+
+
+def compiled_single_agent_step(env, params, index: int, partner_policy):
+    """``jax.jit(single_agent_step(...))``, shared by every view of the same env, params, agent and partner."""
+    per_env = _COMPILED.setdefault(env, {})
+    key = (id(params), index, id(partner_policy))
+    if key not in per_env:  # the value keeps params and the policy alive, so their ids stay theirs
+        per_env[key] = (jax.jit(single_agent_step(env, params, index, partner_policy)), params, partner_policy)
+    return per_env[key][0]
+
+
 class GymnasiumDrivingEnv(gymnasium.Env):
     """One agent of a jaxsmarl scenario as a ``gymnasium.Env`` (see the module docstring)."""
 
@@ -120,7 +133,7 @@ class GymnasiumDrivingEnv(gymnasium.Env):
         self.safe = bool(safe)
         self.observation_space = self.spec_.gymnasium_observation_space()
         self.action_space = self.spec_.gymnasium_action_space()
-        self._step_fn = jax.jit(single_agent_step(env, self.params, self.agent_index, partner_policy))
+        self._step_fn = compiled_single_agent_step(env, self.params, self.agent_index, partner_policy)
         self._key = None
         self._state = None
         self._over = True

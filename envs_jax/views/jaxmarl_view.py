@@ -34,7 +34,8 @@ when ``dones["__all__"]`` exactly as JaxMARL's base class does (same key split, 
   truncations, infos)``: Safety-Gymnasium's ``(obs, reward, cost, terminated, truncated, info)``
   with the state after the observations, as in JaxMARL's own return order.
 
-Bad input: actions for unknown agents, missing agents, or of the wrong shape or dtype raise
+A discrete action may be a scalar or a one-element vector (JaxMARL's baselines unbatchify to
+``[num_envs, 1]``). Bad input: actions for unknown agents, missing agents, or of the wrong shape or dtype raise
 ``ValueError`` when ``step`` is called (also while tracing under ``jit``); out-of-range or NaN
 values raise in eager calls, and inside ``jit`` (values unknown) the simulator's policy applies:
 discrete actions clipped to ``0..n-1``, continuous ones clipped to ``[-1, 1]`` with NaN read as 0.
@@ -112,6 +113,8 @@ class JaxMARLDrivingEnv(MultiAgentEnv):
         parts = []
         for a in self.agents:
             x = actions[a]
+            if spec.discrete and tuple(np.shape(x)) == (1,):  # JaxMARL's baselines pass [1]-shaped discrete actions
+                x = x[0]
             if isinstance(x, jax.core.Tracer):
                 dtype_ok = jnp.issubdtype(x.dtype, jnp.integer if spec.discrete else jnp.floating)
                 shape = tuple(x.shape)
