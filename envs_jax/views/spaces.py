@@ -1,0 +1,195 @@
+"""What every view needs to know about one agent of a ``DrivingEnv``, read from the env itself.
+
+``AgentSpec.of(env)`` reads the number of agents ``K``, the observation width and dtype and the
+action kind (``K`` discrete meta-actions in ``0..n-1``, or ``K`` continuous vectors in
+``[-1, 1]^d``) from ``env.num_agents``, ``env.obs_shape``, ``env.discrete``, ``env.num_actions`` and
+``env.action_dim``; nothing here assumes two agents. It builds the per-agent spaces of each
+ecosystem (JaxMARL's and Gymnasium's, imported lazily so that a view only needs its own package)
+and checks host-side actions: an action of the wrong shape, dtype or range, or a NaN, raises
+:class:`InvalidAction` (a ``ValueError``) that names the agent and what is allowed.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from envs_jax import vehicle as V
+
+IDLE = V.ACTION_NAMES.index("IDLE")
+
+
+class InvalidAction(ValueError):
+    """An action that a view refuses (unknown or missing agent, wrong shape, dtype or range)."""
+
+
+class ResetNeeded(ValueError, AssertionError):
+    """``step`` before ``reset`` or after the episode ended.
+
+    A ``ValueError`` like every bad input here, and an ``AssertionError`` as PettingZoo's
+    order-enforcing checks raise for the same misuse.
+    """
+
+
+def agent_names(num_agents: int) -> list[str]:
+    """``agent_0 .. agent_{K-1}`` (JaxMARL's and PettingZoo's usual names; agent 0 is the leader)."""
+    return [f"agent_{i}" for i in range(int(num_agents))]
+
+
+@dataclasses.dataclass(frozen=True)
+class AgentSpec:
+    """Per-agent shapes of an environment (every agent of a scenario has the same ones)."""
+
+    name: str
+    num_agents: int
+    obs_dim: int
+    obs_dtype: Any  # numpy dtype of the observations (float32, or float64 under jax_enable_x64)
+    discrete: bool
+    num_actions: int | None  # discrete: meta-actions 0..num_actions-1
+    action_dim: int | None  # continuous: vector length d
+
+    @classmethod
+    def of(cls, env) -> "AgentSpec":
+        obs_shape = tuple(int(s) for s in env.obs_shape)
+        k = int(env.num_agents)
+        if len(obs_shape) != 2 or obs_shape[0] != k:
+            raise ValueError(f"{env.name}: expected obs_shape (num_agents, obs_dim) = ({k}, D), got {obs_shape}")
+        dtype = np.dtype(jnp.zeros(()).dtype)  # the simulator's float type: float32, float64 under x64
+        return cls(name=str(env.name), num_agents=k, obs_dim=obs_shape[1], obs_dtype=dtype,
+                   discrete=bool(env.discrete),
+                   num_actions=int(env.num_actions) if env.discrete else None,
+                   action_dim=None if env.discrete else int(env.action_dim))
+
+    @property
+    def agents(self) -> list[str]:
+        return agent_names(self.num_agents)
+
+    # ---------------------------------------------------------------- actions
+    @property
+    def action_shape(self) -> tuple[int, ...]:
+        """One agent's action shape: ``()`` discrete, ``(d,)`` continuous."""
+        return () if self.discrete else (self.action_dim,)
+
+    @property
+    def action_dtype(self):
+        return np.dtype(np.int32) if self.discrete else np.dtype(np.float32)
+
+    def idle(self, batch: tuple[int, ...] = ()) -> jax.Array:
+        """The neutral action (IDLE meta-action, or zero acceleration/steering) for ``batch + (K,)`` agents."""
+        shape = batch + (self.num_agents,) + self.action_shape
+        if self.discrete:
+            return jnp.full(shape, IDLE, jnp.int32)
+        return jnp.zeros(shape, jnp.float32)
+
+    def allowed(self) -> str:
+        if self.discrete:
+            return (f"an integer in 0..{self.num_actions - 1} "
+                    f"({', '.join(f'{i}={n}' for i, n in enumerate(V.ACTION_NAMES[:self.num_actions]))})")
+        return f"a float array of shape ({self.action_dim},) in [-1, 1]"
+
+    def check_action(self, agent: str, value, batch: tuple[int, ...] = ()) -> np.ndarray:
+        """One agent's host action (or a batch of them, shape ``batch + action_shape``) as a numpy array.
+
+        Discrete: integers (not bools) in ``0..n-1``. Continuous: finite floats; values outside
+        ``[-1, 1]`` are clipped by the simulator as highway-env's ``ContinuousAction`` does, and a
+        ``(d,)`` vector may be given as a scalar when ``d == 1``.
+        """
+        arr = np.asarray(value)
+        if arr.dtype == object:
+            raise InvalidAction(f"{self.name}: action of {agent} must be {self.allowed()}, got {value!r}")
+        if self.discrete:
+            if arr.dtype == bool or not np.issubdtype(arr.dtype, np.integer):
+                raise InvalidAction(f"{self.name}: action of {agent} must be {self.allowed()}, "
+                                    f"got {value!r} (dtype {arr.dtype})")
+            if arr.shape != batch:
+                raise InvalidAction(f"{self.name}: action of {agent} must have shape {batch} "
+                                    f"({self.allowed()}), got shape {arr.shape}")
+            if np.any(arr < 0) or np.any(arr >= self.num_actions):
+                raise InvalidAction(f"{self.name}: action of {agent} must be {self.allowed()}, got {arr.tolist()}")
+            return arr.astype(np.int32)
+        if not np.issubdtype(arr.dtype, np.floating):
+            raise InvalidAction(f"{self.name}: action of {agent} must be {self.allowed()}, "
+                                f"got {value!r} (dtype {arr.dtype})")
+        if self.action_dim == 1 and arr.shape == batch:
+            arr = arr[..., None]
+        if arr.shape != batch + self.action_shape:
+            raise InvalidAction(f"{self.name}: action of {agent} must have shape {batch + self.action_shape}, "
+                                f"got shape {arr.shape}")
+        if not np.all(np.isfinite(arr)):
+            raise InvalidAction(f"{self.name}: action of {agent} must be finite, got {arr.tolist()}")
+        return arr.astype(np.float32)
+
+    def check_action_dict(self, actions, live: list[str], batch: tuple[int, ...] = ()) -> np.ndarray:
+        """Stack a ``{agent: action}`` dict into ``batch + (K,) + action_shape``.
+
+        Every agent in ``live`` must have an action; an agent outside ``live`` (finished) may only
+        be given ``None`` (PettingZoo's rule for dead agents) and is driven by the idle action;
+        a name that is no agent of the scenario is refused.
+        """
+        if not isinstance(actions, dict):
+            raise InvalidAction(f"{self.name}: actions must be a dict {{agent: action}} for agents {live}, "
+                                f"got {type(actions).__name__}")
+        agents = self.agents
+        unknown = sorted(str(a) for a in actions if a not in agents)
+        if unknown:
+            raise InvalidAction(f"{self.name}: actions for unknown agent(s) {unknown}; the agents are {agents}")
+        missing = [a for a in live if a not in actions or actions[a] is None]
+        if missing:
+            raise InvalidAction(f"{self.name}: no action for live agent(s) {missing}; every agent in {live} "
+                                f"needs {self.allowed()}")
+        finished = [a for a in actions if a not in live and actions[a] is not None]
+        if finished:
+            raise InvalidAction(f"{self.name}: agent(s) {finished} already finished this episode; their only "
+                                f"valid action is None (live agents: {live})")
+        out = np.array(self.idle(batch))
+        for i, a in enumerate(agents):
+            if a in live:
+                out[(slice(None),) * len(batch) + (i,)] = self.check_action(a, actions[a], batch)
+        return out
+
+    # ---------------------------------------------------------------- spaces
+    def gymnasium_observation_space(self):
+        import gymnasium
+
+        # absolute world coordinates and velocities: unbounded
+        return gymnasium.spaces.Box(-np.inf, np.inf, (self.obs_dim,), self.obs_dtype)
+
+    def gymnasium_action_space(self):
+        import gymnasium
+
+        if self.discrete:
+            return gymnasium.spaces.Discrete(self.num_actions)
+        return gymnasium.spaces.Box(-1.0, 1.0, (self.action_dim,), np.float32)
+
+    def jaxmarl_observation_space(self):
+        from jaxmarl.environments import spaces
+
+        return spaces.Box(-jnp.inf, jnp.inf, (self.obs_dim,), jnp.dtype(self.obs_dtype))
+
+    def jaxmarl_action_space(self):
+        from jaxmarl.environments import spaces
+
+        if self.discrete:
+            return spaces.Discrete(self.num_actions)
+        return spaces.Box(-1.0, 1.0, (self.action_dim,), jnp.float32)
+
+
+def split_info(info: dict, num_agents: int) -> tuple[dict, dict]:
+    """Split a core ``info`` dict (numpy) into per-agent leaves (leading axis ``K``) and global ones."""
+    per_agent, common = {}, {}
+    for key, value in info.items():
+        value = np.asarray(value)
+        if value.ndim >= 1 and value.shape[0] == num_agents:
+            per_agent[key] = value
+        else:
+            common[key] = value
+    return per_agent, common
+
+
+def host_key(np_random: np.random.Generator) -> jax.Array:
+    """A JAX PRNG key drawn from a Gymnasium/PettingZoo ``np_random`` generator (seeded by ``reset(seed)``)."""
+    return jax.random.key(int(np_random.integers(0, 2**31 - 1)))
