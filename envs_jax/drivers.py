@@ -24,13 +24,12 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 
 from envs_jax import idm
 from envs_jax import lanes as L
 from envs_jax import neighbours as N
 from envs_jax import vehicle as Veh
-from envs_jax.mobil import ObjectTable, mobil, pair_acceleration
+from envs_jax.mobil import ObjectTable, accept, pair_acceleration
 from envs_jax.road import Road
 from envs_jax.sparse import sparse_map
 from envs_jax.traffic_state import TrafficState
@@ -73,13 +72,13 @@ def objects(st: TrafficState, obstacles):
 def road_act(road: Road, st: TrafficState, is_idm, is_mdp, p: idm.IDMParams, obstacles=None) -> TrafficState:
     """One frame of ``road.act()``: new target lanes, route pointers, timers and stored actions.
 
-    ``is_idm``, ``is_mdp``: static ``[V]`` flags of the slots' vehicle classes (neither: a
+    ``is_idm``, ``is_mdp``: ``[V]`` flags of the slots' vehicle classes (neither: a
     plain ``Vehicle``); ``obstacles``: ``[O, >= 3]`` rows ``x, y, heading, ...`` or None.
     """
     lanes = road.lanes
     n_slots = st.x.shape[0]
-    is_idm = jnp.asarray(np.asarray(is_idm, bool))
-    is_mdp = jnp.asarray(np.asarray(is_mdp, bool))
+    is_idm = jnp.asarray(is_idm, bool)
+    is_mdp = jnp.asarray(is_mdp, bool)
     controlled_class = is_idm | is_mdp  # ``isinstance(v, ControlledVehicle)``
     acting_idm = st.alive & is_idm & ~st.crashed
     follows = st.alive & (is_mdp | acting_idm)
@@ -94,6 +93,8 @@ def road_act(road: Road, st: TrafficState, is_idm, is_mdp, p: idm.IDMParams, obs
     left, right, has_left, has_right = side_lanes(road, st.lane)
     query = jnp.stack([st.lane, left, right, t1], axis=-1)  # [V, 4]
     s, lat = N.coordinates_on(lanes, query, px, py)  # [V, 4, N]
+    # materialised once: otherwise XLA recomputes the coordinates inside each consumer
+    s, lat = jax.lax.optimization_barrier((s, lat))
     s_self = s[slot, :, slot]  # [V, 4]: the vehicle's own coordinates on its query lanes
     lat_self = lat[slot, :, slot]
     eligible = N.on_lane(lanes, query, s, lat) & valid & (jnp.arange(n_obj) != slot[:, None, None])
@@ -122,11 +123,18 @@ def road_act(road: Road, st: TrafficState, is_idm, is_mdp, p: idm.IDMParams, obs
                 & (s_self[:, q] < lanes.col("length")[lane_q] + L.VEHICLE_LENGTH)
                 & ~jnp.asarray(lanes.forbidden)[lane_q])
 
+    # every acceleration MOBIL compares, for both side lanes, in one batch: (ego, front) pairs
+    me, lf, lr, rf, rr = slot, front[:, 1], rear[:, 1], front[:, 2], rear[:, 2]
+    op, of = front[:, 0], rear[:, 0]
+    ego = jnp.stack([lr, lr, me, rr, rr, me, me, of, of], axis=-1)
+    fro = jnp.stack([lf, me, lf, rf, me, rf, op, me, op], axis=-1)
+    acc = pair_acceleration(objs, ego, fro, st.delta[:, None], p)
+    common = (acc[:, 6], acc[:, 7], acc[:, 8])  # me behind old preceding, old follower behind me / old preceding
     target = t1
-    for q, exists, step in ((1, has_left, -1), (2, has_right, 1)):
+    for q, exists, step, k in ((1, has_left, -1, 0), (2, has_right, 1, 3)):
         target_id = jnp.asarray(road.lane_id)[target]
-        ok = mobil(objs, slot, front[:, q], rear[:, q], front[:, 0], rear[:, 0], lane_id + step, target_id,
-                   fixes_lane, route_id, st.delta, p)
+        ok = accept(acc[:, k], acc[:, k + 1], acc[:, k + 2], *common, lane_id + step, target_id,
+                    fixes_lane, route_id, p)
         target = jnp.where(gate & exists & reachable(q) & moving & ok, query[:, q], target)
 
     # abort rule: another (controlled-class) vehicle is changing into the same lane, within the desired gap
@@ -157,7 +165,7 @@ def road_act(road: Road, st: TrafficState, is_idm, is_mdp, p: idm.IDMParams, obs
     q_final = jnp.argmax(query == final[:, None], axis=-1)
     pick = lambda a: jnp.take_along_axis(a, q_final[:, None], axis=-1)[:, 0]
     steering = Veh.steering_control(lanes, final, pick(s_self), pick(lat_self), st.heading, st.speed)
-    a_lane = pair_acceleration(objs, slot, front[:, 0], st.delta, p)
+    a_lane = acc[:, 6]  # me behind the preceding vehicle of my lane
     a_target = pair_acceleration(objs, slot, pick(front), st.delta, p)
     a_idm = jnp.where(st.lane != final, jnp.minimum(a_lane, a_target), a_lane)
     a_idm = jnp.clip(a_idm, -p.acc_max, p.acc_max)

@@ -48,17 +48,22 @@ def mobil(objs: ObjectTable, me, new_preceding, new_following, old_preceding, ol
     ``target_id``: the id of its current target lane; ``route_fixes_lane``: the head
     of its route names a lane id (``route[0][2] is not None``), ``route_id`` that id.
     """
-    new_following_a = pair_acceleration(objs, new_following, new_preceding, delta, p)
-    new_following_pred_a = pair_acceleration(objs, new_following, me, delta, p)
+    ego = jnp.stack(jnp.broadcast_arrays(new_following, new_following, me, me, old_following, old_following))
+    front = jnp.stack(jnp.broadcast_arrays(new_preceding, me, new_preceding, old_preceding, me, old_preceding))
+    acc = pair_acceleration(objs, ego, front, delta, p)
+    return accept(*acc, lane_id, target_id, route_fixes_lane, route_id, p)
+
+
+def accept(new_following_a, new_following_pred_a, self_pred_a, self_a, old_following_a, old_following_pred_a,
+           lane_id, target_id, route_fixes_lane, route_id, p: idm.IDMParams):
+    """MOBIL's decision from the six accelerations it compares (``acceleration(ego, front)``):
+    new follower behind its preceding / behind me, me behind the new / old preceding,
+    old follower behind me / behind the old preceding."""
     unsafe = new_following_pred_a < -p.lane_change_max_braking_imposed
-    self_pred_a = pair_acceleration(objs, me, new_preceding, delta, p)
     # a route that fixes the lane: reject the wrong direction or an unsafe braking
     wrong_way = jnp.sign(lane_id - target_id) != jnp.sign(route_id - target_id)
     route_reject = wrong_way | (self_pred_a < -p.lane_change_max_braking_imposed)
     # otherwise: the acceleration advantage for me and (politely) my followers
-    self_a = pair_acceleration(objs, me, old_preceding, delta, p)
-    old_following_a = pair_acceleration(objs, old_following, me, delta, p)
-    old_following_pred_a = pair_acceleration(objs, old_following, old_preceding, delta, p)
     jerk = self_pred_a - self_a + p.politeness * (
         new_following_pred_a - new_following_a + old_following_pred_a - old_following_a)
     gain_reject = jerk < p.lane_change_min_acc_gain

@@ -21,7 +21,12 @@ def coordinates_on(lanes: L.LaneTable, query_lane, px, py):
     """``lane.local_coordinates`` of every object ``(px, py)`` (``[N]``) on the lanes ``query_lane``
     (any shape ``[...]``): ``(s, lat)`` of shape ``[..., N]``."""
     q = jnp.asarray(query_lane)[..., None]
-    return L.local_coordinates(lanes, q, px, py)
+    shape = q.shape[:-1] + px.shape
+    phi, radius = L.circle_coords(lanes, px, py)  # [N, C]: once per object, not per query lane
+    circles = (jnp.broadcast_to(phi, shape + phi.shape[-1:]), jnp.broadcast_to(radius, shape + radius.shape[-1:]))
+    px, py = jnp.broadcast_to(px, shape), jnp.broadcast_to(py, shape)
+    # only the lane families the road has (a straight road costs no trigonometry)
+    return L.lane_coords(lanes, px, py, circles, jnp.broadcast_to(q, shape))
 
 
 def on_lane(lanes: L.LaneTable, query_lane, s, lat):

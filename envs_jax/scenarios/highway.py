@@ -122,7 +122,13 @@ class Highway(Task):
         raise NotImplementedError  # built by make_highway from the config
 
     def initial_vehicles(self, key, params: HighwayParams):
-        """``_create_vehicles`` with the draws from ``key`` (lane, speed, spacing factor, delta per slot)."""
+        """``_create_vehicles`` with the draws from ``key``."""
+        return self.place(self.draws(key, params), params)
+
+    def draws(self, key, params: HighwayParams) -> dict:
+        """The random numbers of ``_create_vehicles`` per vehicle, list order: ``lane_id`` (controlled
+        vehicles: ``initial_lane_id`` when set), ``speed`` (controlled: 25 m/s), ``factor`` (spacing
+        draw) and ``delta`` (``randomize_behavior``; controlled: ``idm.delta``, unused)."""
         dtype = L.float_dtype()
         n = self.num_vehicles
         k_lane, k_speed, k_space, k_delta = jax.random.split(key, 4)
@@ -134,8 +140,7 @@ class Highway(Task):
         factor = jax.random.uniform(k_space, (n,), dtype, 0.9, 1.1)
         d_lo, d_hi = params.idm.delta_range
         delta = jnp.where(ctrl, params.idm.delta, jax.random.uniform(k_delta, (n,), dtype, d_lo, d_hi))
-        draws = dict(lane_id=lane_id, speed=speed, factor=factor, delta=delta)
-        return self.place(draws, params)
+        return dict(lane_id=lane_id, speed=speed, factor=factor, delta=delta)
 
     def place(self, draws: dict, params: HighwayParams) -> dict:
         """Positions from the per-vehicle draws (``create_random``'s arithmetic, in list order).
