@@ -8,7 +8,8 @@
 """
 
 from envs_jax.env import DrivingEnv, EnvParams, EnvState
-from envs_jax.registry import available_scenarios, make, register
+from envs_jax.registry import available_scenarios, available_tasks, make, register, register_task
+from envs_jax.scenarios.highway import make_highway
 from envs_jax.scenarios.intersection import Intersection
 from envs_jax.scenarios.merge import Merge
 from envs_jax.scenarios.racetrack import Racetrack
@@ -19,5 +20,7 @@ register("merge", Merge)
 register("roundabout", Roundabout)
 register("intersection", Intersection)
 register("racetrack", Racetrack)
+register_task("highway-v0", make_highway)
+register_task("highway-fast-v0", make_highway)
 
-__all__ = ["make", "available_scenarios", "register", "DrivingEnv", "EnvParams", "EnvState", "AutoResetWrapper", "rollout"]
+__all__ = ["make", "available_scenarios", "available_tasks", "register", "register_task", "DrivingEnv", "EnvParams", "EnvState", "AutoResetWrapper", "rollout"]

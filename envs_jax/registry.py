@@ -10,6 +10,8 @@ import numpy as np
 from envs_jax.env import DrivingEnv, Scenario
 
 _SCENARIOS: dict[str, Callable[[], Scenario]] = {}
+# traffic tasks (V vehicle slots, K controlled): name -> factory(name, env_config, **overrides) -> TrafficEnv
+_TASKS: dict[str, Callable[..., Any]] = {}
 _CACHE: dict[str, Scenario] = {}
 
 STATIC_KEYS = ("simulation_frequency", "policy_frequency")
@@ -28,14 +30,24 @@ def register(name: str, factory: Callable[[], Scenario]) -> None:
     _SCENARIOS[name] = factory
 
 
+def register_task(name: str, factory: Callable[..., Any]) -> None:
+    """Register a traffic task: ``factory(name, env_config, **overrides)`` returns its environment."""
+    _TASKS[name] = factory
+
+
 def available_scenarios() -> list[str]:
-    """Names accepted by :func:`make`."""
+    """Names of the two-agent scenarios accepted by :func:`make`."""
     return sorted(_SCENARIOS)
+
+
+def available_tasks() -> list[str]:
+    """Names of the traffic tasks accepted by :func:`make` (V vehicle slots, K controlled)."""
+    return sorted(_TASKS)
 
 
 def _scenario(name: str, action_mode: str | None = None) -> Scenario:
     if name not in _SCENARIOS:
-        raise ValueError(f"unknown scenario {name!r}; available: {', '.join(available_scenarios())}")
+        raise ValueError(f"unknown scenario {name!r}; available: {', '.join(available_scenarios() + available_tasks())}")
     key = (name, action_mode)
     if key not in _CACHE:
         if action_mode is None:
@@ -60,6 +72,10 @@ def make(name: str, env_config: dict | None = None, action_mode: str | None = No
     keys that apply are translated, rendering keys are ignored, and anything
     else raises ``ValueError``.
     """
+    if name in _TASKS:
+        if action_mode is not None:
+            raise ValueError(f"{name}: action_mode does not apply (discrete meta-actions); set 'action' instead")
+        return _TASKS[name](name, env_config, **overrides)
     if env_config is not None and action_mode is None:
         action_mode = _action_mode_from_config(_scenario(name), env_config)
     scenario = _scenario(name, action_mode)

@@ -1,0 +1,177 @@
+"""``road.act()`` for V vehicle slots: controlled MDP vehicles and IDM/MOBIL drivers, in list order.
+
+In highway-env every vehicle acts in ``road.vehicles`` order within a frame:
+
+* a controlled MDP vehicle (``ControlledVehicle.act(None)``): ``follow_road``, then
+  steering towards its target lane and the proportional speed controller;
+* an IDM vehicle (``IDMVehicle.act``), unless crashed: ``follow_road``,
+  ``change_lane_policy`` (MOBIL, gated by the lane-change timer, or the abort rule
+  during a lane change), steering towards the target lane, and IDM acceleration
+  against the front vehicle of the current lane (during a lane change, the minimum
+  with the front vehicle of the target lane), clipped to ``acc_max``;
+* a plain vehicle (continuous actions) keeps its stored action.
+
+Only the abort rule reads another vehicle's mutable state (its target lane), so only
+it depends on the order: a vehicle sees the *final* target of the vehicles before it
+in the list and the frame's *initial* target of those after it. Everything else is
+computed for all slots at once; the abort rule is solved as the fixed point of
+"each vehicle's decision given the others' decisions" (a ``while_loop``, typically
+one or two rounds), which is unique and equal to the sequential result because a
+vehicle depends only on the vehicles before it.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+
+from envs_jax import idm
+from envs_jax import lanes as L
+from envs_jax import neighbours as N
+from envs_jax import vehicle as Veh
+from envs_jax.mobil import ObjectTable, accept, pair_acceleration
+from envs_jax.road import Road
+from envs_jax.sparse import sparse_map
+from envs_jax.traffic_state import TrafficState
+
+
+def follow_road(road: Road, st: TrafficState, acting):
+    """``ControlledVehicle.follow_road`` for the ``acting`` slots: past ``length - 2.5`` m of the
+    target lane, switch to ``road.next_lane``. Returns ``(target_lane, route_ptr)``."""
+    tl, rp = st.target_lane, st.route_ptr
+    s, _ = L.local_coordinates(road.lanes, tl, st.x, st.y)
+    end = acting & (s > road.lanes.col("length")[tl] - L.VEHICLE_LENGTH / 2)
+    nl, nrp = sparse_map(road.next_lane, end, tl, s, st.route_roads, st.route_ids, st.route_len, rp,
+                         fraction=1 / 32)
+    return jnp.where(end, nl, tl), jnp.where(end, nrp, rp)
+
+
+def side_lanes(road: Road, lane):
+    """``network.side_lanes(lane)``: the lanes left (id - 1) and right (id + 1) on the same road,
+    with flags for their existence (the lane itself stands in for a missing one)."""
+    road_lanes = jnp.asarray(road.road_lanes)
+    r = jnp.asarray(road.lane_road)[lane]
+    i = jnp.asarray(road.lane_id)[lane]
+    n = jnp.asarray(road.road_num_lanes)[r]
+    has_left, has_right = i > 0, i < n - 1
+    left = jnp.where(has_left, road_lanes[r, jnp.maximum(i - 1, 0)], lane)
+    right = jnp.where(has_right, road_lanes[r, jnp.minimum(i + 1, road_lanes.shape[1] - 1)], lane)
+    return left, right, has_left, has_right
+
+
+def objects(st: TrafficState, obstacles):
+    """Positions, headings, speeds and presence of every road object: slots, then obstacles."""
+    if obstacles is None:
+        return st.x, st.y, st.heading, st.speed, st.alive
+    ox, oy, oh = obstacles[:, 0], obstacles[:, 1], obstacles[:, 2]
+    cat = lambda a, b: jnp.concatenate([a, b.astype(a.dtype)])
+    return (cat(st.x, ox), cat(st.y, oy), cat(st.heading, oh), cat(st.speed, jnp.zeros_like(ox)),
+            jnp.concatenate([st.alive, jnp.ones(ox.shape, bool)]))
+
+
+def road_act(road: Road, st: TrafficState, is_idm, is_mdp, p: idm.IDMParams, obstacles=None) -> TrafficState:
+    """One frame of ``road.act()``: new target lanes, route pointers, timers and stored actions.
+
+    ``is_idm``, ``is_mdp``: ``[V]`` flags of the slots' vehicle classes (neither: a
+    plain ``Vehicle``); ``obstacles``: ``[O, >= 3]`` rows ``x, y, heading, ...`` or None.
+    """
+    lanes = road.lanes
+    n_slots = st.x.shape[0]
+    is_idm = jnp.asarray(is_idm, bool)
+    is_mdp = jnp.asarray(is_mdp, bool)
+    controlled_class = is_idm | is_mdp  # ``isinstance(v, ControlledVehicle)``
+    acting_idm = st.alive & is_idm & ~st.crashed
+    follows = st.alive & (is_mdp | acting_idm)
+    slot = jnp.arange(n_slots)
+
+    t0 = st.target_lane
+    t1, route_ptr = follow_road(road, st, follows)
+
+    px, py, ph, pv, valid = objects(st, obstacles)
+    n_obj = px.shape[0]
+    is_vehicle = jnp.arange(n_obj) < n_slots
+    left, right, has_left, has_right = side_lanes(road, st.lane)
+    query = jnp.stack([st.lane, left, right, t1], axis=-1)  # [V, 4]
+    s, lat = N.coordinates_on(lanes, query, px, py)  # [V, 4, N]
+    # materialised once: otherwise XLA recomputes the coordinates inside each consumer
+    s, lat = jax.lax.optimization_barrier((s, lat))
+    s_self = s[slot, :, slot]  # [V, 4]: the vehicle's own coordinates on its query lanes
+    lat_self = lat[slot, :, slot]
+    eligible = N.on_lane(lanes, query, s, lat) & valid & (jnp.arange(n_obj) != slot[:, None, None])
+    front, rear = N.front_rear(s_self, s, eligible)  # [V, 4]
+
+    pad = lambda a, v: jnp.concatenate([a, jnp.full((n_obj - n_slots,), v, a.dtype)])
+    objs = ObjectTable(speed=pv, heading=ph,
+                       target_speed=pad(jnp.where(controlled_class, st.target_speed, 0.0), 0.0),
+                       speed_limit=pad(lanes.col("speed_limit")[st.lane], 0.0),
+                       is_vehicle=is_vehicle, s_own=s[:, 0, :])
+
+    # MOBIL, at the timer's pace, when no lane change is ongoing
+    changing = st.lane != t1
+    gate = acting_idm & ~changing & (p.lane_change_delay < st.timer)
+    timer = jnp.where(gate, 0.0, st.timer)
+    has_route = route_ptr < st.route_len
+    head = jnp.clip(route_ptr, 0, st.route_ids.shape[-1] - 1)
+    route_id = jnp.take_along_axis(st.route_ids, head[:, None], axis=-1)[:, 0]
+    fixes_lane = has_route & (route_id >= 0)
+    lane_id = jnp.asarray(road.lane_id)[st.lane]
+    moving = jnp.abs(st.speed) >= 1
+
+    def reachable(q):
+        lane_q = query[:, q]
+        return ((jnp.abs(lat_self[:, q]) <= 2 * lanes.col("width")[lane_q]) & (0 <= s_self[:, q])
+                & (s_self[:, q] < lanes.col("length")[lane_q] + L.VEHICLE_LENGTH)
+                & ~jnp.asarray(lanes.forbidden)[lane_q])
+
+    # every acceleration MOBIL compares, for both side lanes, in one batch: (ego, front) pairs
+    me, lf, lr, rf, rr = slot, front[:, 1], rear[:, 1], front[:, 2], rear[:, 2]
+    op, of = front[:, 0], rear[:, 0]
+    ego = jnp.stack([lr, lr, me, rr, rr, me, me, of, of], axis=-1)
+    fro = jnp.stack([lf, me, lf, rf, me, rf, op, me, op], axis=-1)
+    acc = pair_acceleration(objs, ego, fro, st.delta[:, None], p)
+    common = (acc[:, 6], acc[:, 7], acc[:, 8])  # me behind old preceding, old follower behind me / old preceding
+    target = t1
+    for q, exists, step, k in ((1, has_left, -1, 0), (2, has_right, 1, 3)):
+        target_id = jnp.asarray(road.lane_id)[target]
+        ok = accept(acc[:, k], acc[:, k + 1], acc[:, k + 2], *common, lane_id + step, target_id,
+                    fixes_lane, route_id, p)
+        target = jnp.where(gate & exists & reachable(q) & moving & ok, query[:, q], target)
+
+    # abort rule: another (controlled-class) vehicle is changing into the same lane, within the desired gap
+    lane_road = jnp.asarray(road.lane_road)
+    abortable = acting_idm & changing & (lane_road[st.lane] == lane_road[t1])
+    d = s[:, 0, :n_slots] - s_self[:, :1]  # [V, V]: lane_distance_to(v), on the vehicle's own lane
+    dv = idm.velocity_gap(st.speed[:, None], st.heading[:, None], st.speed[None, :], st.heading[None, :])
+    d_star = idm.desired_gap(st.speed[:, None], dv, p)
+    rivals = (st.alive[None, :] & controlled_class[None, :] & (slot[None, :] != slot[:, None])
+              & (st.lane[None, :] != t1[:, None]) & (0 < d) & (d < d_star))
+    before = slot[None, :] < slot[:, None]
+    base = jnp.where(acting_idm, target, jnp.where(follows, t1, t0))
+
+    def decide(final):
+        seen = jnp.where(before, final[None, :], t0[None, :])
+        abort = abortable & jnp.any(rivals & (seen == t1[:, None]), axis=1)
+        return jnp.where(abort, st.lane, base)
+
+    def body(carry):
+        final, _ = carry
+        new = decide(final)
+        return new, jnp.any(new != final)
+
+    first = decide(base)
+    final, _ = jax.lax.while_loop(lambda c: c[1], body, (first, jnp.any(first != base)))
+
+    # low-level commands
+    q_final = jnp.argmax(query == final[:, None], axis=-1)
+    pick = lambda a: jnp.take_along_axis(a, q_final[:, None], axis=-1)[:, 0]
+    steering = Veh.steering_control(lanes, final, pick(s_self), pick(lat_self), st.heading, st.speed)
+    a_lane = acc[:, 6]  # me behind the preceding vehicle of my lane
+    a_target = pair_acceleration(objs, slot, pick(front), st.delta, p)
+    a_idm = jnp.where(st.lane != final, jnp.minimum(a_lane, a_target), a_lane)
+    a_idm = jnp.clip(a_idm, -p.acc_max, p.acc_max)
+    a_mdp = Veh.speed_control(st.target_speed, st.speed)
+    commands = follows
+    acceleration = jnp.where(acting_idm, a_idm, a_mdp)
+    return st.replace(target_lane=final.astype(jnp.int32), route_ptr=route_ptr, timer=timer,
+                      steering=jnp.where(commands, steering, st.steering).astype(st.x.dtype),
+                      acceleration=jnp.where(commands, acceleration, st.acceleration).astype(st.x.dtype))

@@ -1,0 +1,66 @@
+"""``Road.neighbour_vehicles``: the nearest object ahead and behind a vehicle on a given lane.
+
+highway-env projects the vehicle and every other road object (vehicles in list
+order, then obstacles) on the lane, keeps the objects that are on it with a 1 m
+lateral margin (``lane.on_lane(..., margin=1)``) and takes the nearest
+longitudinal coordinate ahead (``s <= s_v``; on ties the *last* object in list
+order wins) and behind (``s_v < s``; on ties the *first* wins). Objects are
+indexed here in that list order: vehicle slots first, then obstacles.
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+
+from envs_jax import lanes as L
+
+MARGIN = 1.0  # lateral margin of the on-lane test [m]
+
+
+def coordinates_on(lanes: L.LaneTable, query_lane, px, py):
+    """``lane.local_coordinates`` of every object ``(px, py)`` (``[N]``) on the lanes ``query_lane``
+    (any shape ``[...]``): ``(s, lat)`` of shape ``[..., N]``."""
+    q = jnp.asarray(query_lane)[..., None]
+    shape = q.shape[:-1] + px.shape
+    phi, radius = L.circle_coords(lanes, px, py)  # [N, C]: once per object, not per query lane
+    circles = (jnp.broadcast_to(phi, shape + phi.shape[-1:]), jnp.broadcast_to(radius, shape + radius.shape[-1:]))
+    px, py = jnp.broadcast_to(px, shape), jnp.broadcast_to(py, shape)
+    # only the lane families the road has (a straight road costs no trigonometry)
+    return L.lane_coords(lanes, px, py, circles, jnp.broadcast_to(q, shape))
+
+
+def on_lane(lanes: L.LaneTable, query_lane, s, lat):
+    """``lane.on_lane(position, s, lat, margin=1)`` for coordinates ``[..., N]`` on ``query_lane`` ``[...]``."""
+    q = jnp.asarray(query_lane)[..., None]
+    width = lanes.col("width")[q]
+    length = lanes.col("length")[q]
+    return (jnp.abs(lat) <= width / 2 + MARGIN) & (-L.VEHICLE_LENGTH <= s) & (s < length + L.VEHICLE_LENGTH)
+
+
+def front_rear(s_ego, s, on):
+    """Indices of the preceding and following objects (``-1``: none) from the ego's coordinate
+    ``s_ego`` ``[...]`` and the objects' coordinates ``s`` and eligibility ``on`` ``[..., N]``
+    (``on`` must already exclude the ego itself and empty slots)."""
+    n = s.shape[-1]
+    idx = jnp.arange(n, dtype=jnp.int32)
+    s_ego = jnp.asarray(s_ego)[..., None]
+    ahead = on & (s_ego <= s)
+    s_front = jnp.min(jnp.where(ahead, s, jnp.inf), axis=-1, keepdims=True)
+    front = jnp.max(jnp.where(ahead & (s == s_front), idx, -1), axis=-1)
+    behind = on & (s < s_ego)
+    s_rear = jnp.max(jnp.where(behind, s, -jnp.inf), axis=-1, keepdims=True)
+    rear = jnp.min(jnp.where(behind & (s == s_rear), idx, n), axis=-1)
+    return front, jnp.where(rear == n, -1, rear)
+
+
+def neighbour_vehicles(lanes: L.LaneTable, ego, query_lane, px, py, valid):
+    """``road.neighbour_vehicles(objects[ego], query_lane)`` for one or many egos.
+
+    ``px, py, valid``: ``[N]`` positions and presence of all objects (list order);
+    ``ego`` and ``query_lane`` broadcast together. Returns ``(front, rear)`` indices.
+    """
+    s, lat = coordinates_on(lanes, query_lane, px, py)
+    ego = jnp.asarray(ego)
+    s_ego = jnp.take_along_axis(s, jnp.broadcast_to(ego, s.shape[:-1])[..., None], axis=-1)[..., 0]
+    eligible = on_lane(lanes, query_lane, s, lat) & valid & (jnp.arange(px.shape[-1]) != ego[..., None])
+    return front_rear(s_ego, s, eligible)

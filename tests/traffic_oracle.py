@@ -1,0 +1,144 @@
+"""highway-env oracle of the traffic tasks (``highway-v0``, ``highway-fast-v0``) with K controlled vehicles.
+
+highway-env runs its own task (its ``HighwayEnv`` / ``HighwayEnvFast`` classes, its
+``IDMVehicle`` drivers, its ``road.act`` / ``road.step`` order) from an initial state
+*injected* from the JAX simulator: every vehicle's position, heading, speed and list
+position, the drivers' randomised exponent ``DELTA``, the lane-change timers (checked
+against highway-env's own formula) and the controlled vehicles' target speeds.
+After every simulation frame every vehicle is recorded; after every step the
+observations, per-agent rewards and terminations.
+
+Per-agent outcomes: highway-env's ``_reward`` / ``_is_terminated`` read
+``self.vehicle`` (the first controlled vehicle); agent k's values are those
+functions evaluated with vehicle k first (k = 0 is exactly what ``env.step``
+returns, which is checked).
+
+highway-env is imported here only; it must never be imported outside ``tests/``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from highway_env.envs.highway_env import HighwayEnv, HighwayEnvFast
+from highway_env.vehicle.behavior import IDMVehicle
+
+CLASSES = {"highway-v0": HighwayEnv, "highway-fast-v0": HighwayEnvFast}
+
+
+def oracle_config(name: str, controlled: int, observation: dict | None = None, **extra) -> dict:
+    """highway-env config of a task with ``controlled`` agents (multi-agent action/observation when > 1)."""
+    obs = observation or {"type": "Kinematics"}
+    action = {"type": "DiscreteMetaAction"}
+    cfg = {"controlled_vehicles": controlled}
+    if controlled > 1:
+        cfg["observation"] = {"type": "MultiAgentObservation", "observation_config": obs}
+        cfg["action"] = {"type": "MultiAgentAction", "action_config": action}
+    else:
+        cfg["observation"] = obs
+        cfg["action"] = action
+    cfg.update(extra)
+    return cfg
+
+
+def lane_numbers(network) -> dict:
+    """``(from, to, id)`` -> global lane number in ``graph`` iteration order (the JAX numbering)."""
+    out = {}
+    for f, tos in network.graph.items():
+        for t, lanes in tos.items():
+            for i in range(len(lanes)):
+                out[(f, t, i)] = len(out)
+    return out
+
+
+def inject(env, init: dict, controlled: tuple) -> list:
+    """Replace the vehicles of a reset ``env`` by the JAX initial state ``init`` (numpy, per slot).
+
+    Returns the lane-change timers highway-env computed itself for the IDM vehicles (slot order).
+    """
+    road = env.road
+    vehicle_class = env.action_type.vehicle_class
+    vehicles, ctrl, timers = [], [], []
+    for i in np.nonzero(init["alive"])[0]:
+        pos = [float(init["x"][i]), float(init["y"][i])]
+        h, v = float(init["heading"][i]), float(init["speed"][i])
+        if i in controlled:
+            veh = vehicle_class(road, pos, h, v)
+            ctrl.append(veh)
+        else:
+            veh = IDMVehicle(road, pos, h, v)
+            veh.DELTA = float(init["delta"][i])
+            timers.append(veh.timer)
+            if isinstance(env, HighwayEnvFast):
+                veh.check_collisions = False
+        vehicles.append(veh)
+    road.vehicles = vehicles
+    env.controlled_vehicles = ctrl
+    env.define_spaces()
+    return timers
+
+
+def agent_outcomes(env, action) -> tuple:
+    """Per-agent ``(_reward, _is_terminated, _rewards)`` with each controlled vehicle taken as ``env.vehicle``."""
+    vehicles = list(env.controlled_vehicles)
+    rewards, terms, parts = [], [], []
+    try:
+        for k in range(len(vehicles)):
+            env.controlled_vehicles = [vehicles[k]] + vehicles[:k] + vehicles[k + 1:]
+            rewards.append(env._reward(action))
+            terms.append(bool(env._is_terminated()))
+            parts.append(env._rewards(action))
+    finally:
+        env.controlled_vehicles = vehicles
+    return np.array(rewards), np.array(terms), parts
+
+
+def run_oracle(name: str, init: dict, controlled: tuple, actions, config: dict, steps: int | None = None) -> dict:
+    """Run ``actions`` (``[T, K]`` ints) from the injected state; records as documented in the module."""
+    env = CLASSES[name](config=config)
+    env.reset(seed=0)
+    timers = inject(env, init, controlled)
+    lanes = lane_numbers(env.road.network)
+    vehicles = list(env.road.vehicles)
+    frames = []
+
+    def record():
+        frames.append({
+            "x": [v.position[0] for v in vehicles], "y": [v.position[1] for v in vehicles],
+            "heading": [v.heading for v in vehicles], "speed": [v.speed for v in vehicles],
+            "crashed": [v.crashed for v in vehicles],
+            "lane": [lanes[(v.lane_index[0], v.lane_index[1], int(v.lane_index[2]))] for v in vehicles],
+            "target_lane": [lanes[(v.target_lane_index[0], v.target_lane_index[1], int(v.target_lane_index[2]))]
+                            for v in vehicles],
+        })
+
+    road_step = env.road.step
+
+    def step_and_record(dt):
+        road_step(dt)
+        record()
+
+    env.road.step = step_and_record
+    obs0 = env.observation_type.observe()
+    out = {"obs": [np.asarray(obs0)], "reward": [], "terminated": [], "truncated": [], "env_reward": [],
+           "env_terminated": [], "parts": [], "timers": np.array(timers)}
+    k = len(controlled)
+    for t, a in enumerate(np.asarray(actions)):
+        if steps is not None and t >= steps:
+            break
+        act = int(a[0]) if k == 1 else tuple(int(u) for u in a)
+        obs, reward, terminated, truncated, _ = env.step(act)
+        rewards, terms, parts = agent_outcomes(env, act)
+        out["obs"].append(np.asarray(obs))
+        out["reward"].append(rewards)
+        out["terminated"].append(terms)
+        out["truncated"].append(truncated)
+        out["env_reward"].append(reward)
+        out["env_terminated"].append(terminated)
+        out["parts"].append(parts)
+    out["frames"] = {key: np.array([f[key] for f in frames]) for key in frames[0]} if frames else {}
+    for key in ("obs", "reward", "terminated", "truncated", "env_reward", "env_terminated"):
+        out[key] = np.array(out[key])
+    if k == 1:
+        out["obs"] = out["obs"][:, None]
+    return out
