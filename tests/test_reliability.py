@@ -310,7 +310,8 @@ def test_failed_checkpoint_write_stops_the_run_cleanly(tmp_path, small_config, s
     assert cli.main(["--out", out, "--config", _config_file(tmp_path, small_config), "--quiet"]) == 1
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("error: could not write the checkpoint at step 400 into "), err
-    assert "File too large" in err[0] and "intact (200)" in err[0]
+    # the reason is the OS's (File too large) or, when tensorstore hits the limit first, its own message
+    assert "intact (200)" in err[0] and err[0].endswith("the run stopped")
     monkeypatch.undo()
     with Checkpointer(os.path.join(out, "checkpoints")) as ck:
         assert ck.all_steps() == [200]
