@@ -23,15 +23,9 @@ from jaxsmarl.checkpoints import Checkpointer
 from train import __main__ as cli
 from train.config import load_config
 from train.run import run
+from tests.test_checkpoints import _leaves_equal
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-
-
-def _leaves_equal(a, b) -> bool:
-    la, lb = jax.tree.leaves(a), jax.tree.leaves(b)
-    return len(la) == len(lb) and all(
-        np.asarray(x).dtype == np.asarray(y).dtype and np.array_equal(np.asarray(x), np.asarray(y))
-        for x, y in zip(la, lb))
 
 
 def _state(seed: int):
