@@ -1,3 +1,4 @@
+import gc
 import os
 
 os.environ.setdefault("XLA_FLAGS", "--xla_force_host_platform_device_count=1")
@@ -11,3 +12,16 @@ def x64():
     """Run a test with 64-bit floats (jit caches are keyed on the flag, so this is safe)."""
     with jax.enable_x64(True):
         yield
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _release_compiled_programs():
+    """Drop every compiled program after each test module.
+
+    Each XLA:CPU executable holds a few memory mappings until its jit cache entry goes. One process running the
+    whole suite compiles thousands of programs, and past the kernel's mapping limit (``vm.max_map_count``, 65,530
+    by default) the next compilation dies with a segmentation fault instead of an error.
+    """
+    yield
+    jax.clear_caches()
+    gc.collect()

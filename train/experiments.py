@@ -258,6 +258,7 @@ def run_study(out: str, only=None, quick: bool = False, seeds: int | None = None
             status.pop("config", None)
             study["runs"][key] = status
             _write_json(path, study)
+            _release_compiled_programs()
     t1 = time.perf_counter()
     paths = figures.make_figures(study_dir)
     study["figures_s"] = time.perf_counter() - t1
@@ -280,6 +281,18 @@ def _write_json(path: str, obj) -> None:
     from jaxsmarl.metrics import write_json
 
     write_json(path, obj)
+
+
+def _release_compiled_programs() -> None:
+    """Drop the finished run's compiled programs: each XLA:CPU executable keeps a few memory mappings, and a long
+    study in one process would otherwise approach the kernel's mapping limit (``vm.max_map_count``), past which
+    compilation crashes. The persistent compilation cache makes a later identical program cheap again."""
+    import gc
+
+    import jax
+
+    jax.clear_caches()
+    gc.collect()
 
 
 def enable_compile_cache(path: str) -> None:
