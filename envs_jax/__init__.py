@@ -15,6 +15,7 @@ from envs_jax.scenarios.merge import Merge
 from envs_jax.scenarios.merge_traffic import make_merge
 from envs_jax.scenarios.racetrack import Racetrack
 from envs_jax.scenarios.roundabout import Roundabout
+from envs_jax.scenarios.roundabout_traffic import make_roundabout
 from envs_jax.wrappers import AutoResetWrapper, rollout
 
 register("merge", Merge)
@@ -24,5 +25,6 @@ register("racetrack", Racetrack)
 register_task("highway-v0", make_highway)
 register_task("highway-fast-v0", make_highway)
 register_task("merge-v0", make_merge)
+register_task("roundabout-v0", make_roundabout)
 
 __all__ = ["make", "available_scenarios", "available_tasks", "register", "register_task", "DrivingEnv", "EnvParams", "EnvState", "AutoResetWrapper", "rollout"]

@@ -10,7 +10,8 @@ episodes per configuration, to the end of the episode) are ``@pytest.mark.slow``
 
 from __future__ import annotations
 
-import jax
+import types
+
 import numpy as np
 import pytest
 
@@ -37,28 +38,59 @@ def routes_of(env, init) -> dict:
     return out
 
 
-def compare(name, k, seed, steps):
-    """One random-action episode in both simulators: the JAX and highway-env records and the episode length."""
+def compare(name, k, seed, steps, oracle_numpy=None):
+    """One random-action episode in both simulators: the JAX and highway-env records and the episode length.
+
+    ``oracle_numpy``: a stand-in for the numpy module of highway-env's steering controller."""
     rng = np.random.default_rng(seed)
     actions = rng.integers(0, 5, size=(steps, k))
     j = run_jax(name, seed, actions, controlled_vehicles=k)
     env = j["env"]
-    o = run_oracle(name, j["init"], env.controlled, actions[: j["length"]], oracle_config(name, k),
-                   routes=routes_of(env, j["init"]))
+    import highway_env.vehicle.controller as controller
+
+    controller.np = oracle_numpy or np
+    try:
+        o = run_oracle(name, j["init"], env.controlled, actions[: j["length"]], oracle_config(name, k),
+                       routes=routes_of(env, j["init"]))
+    finally:
+        controller.np = np
     return env, j, o
+
+
+def oracle_sensitivity(name, k, seed, steps, o) -> float:
+    """How far highway-env moves *itself* when its steering controller's arcsin is off by one ulp.
+
+    XLA's float64 arcsin / arctan2 differ from the C library's by an ulp on some inputs; near zero
+    speed (the roundabout's lowest target speed is 0) the steering controller divides by
+    ``not_zero(speed)`` and amplifies such differences without bound (docs/parity.md)."""
+
+    class NumpyOneUlp(types.ModuleType):
+        def __getattr__(self, attr):
+            return getattr(np, attr)
+
+    shifted = NumpyOneUlp("numpy_one_ulp")
+    shifted.arcsin = lambda v: np.nextafter(np.arcsin(v), np.inf)
+    _, _, moved = compare(name, k, seed, steps, oracle_numpy=shifted)
+    n = min(len(o["frames"]["x"]), len(moved["frames"]["x"]))
+    return float(max(np.abs(o["frames"][key][:n] - moved["frames"][key][:n]).max() for key in ("x", "y")))
 
 
 def check_episode(name, k, seed, steps, tol=POS_TOL):
     """One random-action episode, everything asserted; returns (max position error, lane-change decisions,
-    crashed vehicles at the end, episode length)."""
+    crashed vehicles at the end, episode length, highway-env's one-ulp sensitivity where it was needed)."""
     env, j, o = compare(name, k, seed, steps)
     alive = j["init"]["alive"]
+    err = max(float(np.abs(o["frames"][key] - j["frames"][key][:, alive]).max()) for key in ("x", "y"))
+    sensitivity = None
+    if err > tol:  # a chaotic episode: within highway-env's own one-ulp sensitivity
+        sensitivity = oracle_sensitivity(name, k, seed, steps, o)
+        assert err <= sensitivity, (f"{name} K={k} seed {seed}: position error {err:.3g} m exceeds {tol} m and "
+                                    f"highway-env's own one-ulp sensitivity {sensitivity:.3g} m")
+        tol = max(tol, sensitivity)
     np.testing.assert_allclose(o["timers"], j["init"]["timer"][alive & env.is_idm], rtol=0, atol=1e-12)
     assert len(o["frames"]["x"]) == j["length"] * env.frames
-    err = 0.0
     for key in ("x", "y", "heading", "speed"):
         e = np.abs(o["frames"][key] - j["frames"][key][:, alive])
-        err = max(err, float(e.max()))
         assert e.max() <= tol, (key, float(e.max()), int(np.argmax(e.max(1) > tol)))
     for key in ("crashed", "lane", "target_lane"):
         np.testing.assert_array_equal(j["frames"][key][:, alive], o["frames"][key], err_msg=key)
@@ -70,33 +102,39 @@ def check_episode(name, k, seed, steps, tol=POS_TOL):
     np.testing.assert_array_equal(j["cost"], env.default_params.collision_cost * crashed_agents)
     np.testing.assert_array_equal(j["terminated"], o["terminated"])
     np.testing.assert_array_equal(j["truncated"], o["truncated"])
-    assert j["done"][-1], "the episode must end within the drawn actions"
+    if steps >= STEPS[name]:
+        assert j["done"][-1], "the episode must end within the drawn actions"
     tl = o["frames"]["target_lane"]
-    return err, int((tl[1:] != tl[:-1]).sum()), int(o["frames"]["crashed"][-1].sum()), j["length"]
+    return err, int((tl[1:] != tl[:-1]).sum()), int(o["frames"]["crashed"][-1].sum()), j["length"], sensitivity
 
 
-@pytest.mark.parametrize("name,k,seed", [("merge-v0", 1, 0), ("merge-v0", 3, 1)])
-def test_parity_sample(name, k, seed, x64):
-    err, changes, crashes, length = check_episode(name, k, seed, STEPS[name])
+@pytest.mark.parametrize("name,k,seed,steps", [("merge-v0", 1, 0, 40), ("merge-v0", 3, 1, 40),
+                                               ("roundabout-v0", 1, 0, 6), ("roundabout-v0", 3, 2, 6)])
+def test_parity_sample(name, k, seed, steps, x64):
+    err, changes, crashes, length, _ = check_episode(name, k, seed, steps)
     print(f"\n{name} K={k}: {length} steps, max position error {err:.1e} m, {changes} lane-change decisions, "
           f"{crashes} crashed")
     assert changes > 0
 
 
 def full_set(name, k, tol=POS_TOL):
-    errs, changes, crashes, steps = [], 0, 0, 0
+    errs, changes, crashes, steps, chaotic = [], 0, 0, 0, []
     for seed in range(30):
-        e, c, x, n = check_episode(name, k, 100 + seed, STEPS[name], tol)
+        e, c, x, n, sensitivity = check_episode(name, k, 100 + seed, STEPS[name], tol)
         errs.append(e)
         changes += c
         crashes += x
         steps += n
-    print(f"\n{name} K={k}: 30 episodes, {steps} steps, worst position error {max(errs):.1e} m, "
-          f"{changes} lane-change decisions, {crashes} vehicles crashed at the end")
+        if sensitivity is not None:
+            chaotic.append(f"{e:.1e} m vs {sensitivity:.1e} m")
+    print(f"\n{name} K={k}: 30 episodes, {steps} steps, position error median {np.median(errs):.1e} m, worst "
+          f"{max(errs):.1e} m, {changes} lane-change decisions, {crashes} vehicles crashed at the end; "
+          f"{len(chaotic)} episodes over {tol:g} m, each within highway-env's own one-ulp sensitivity "
+          f"(error vs sensitivity: {', '.join(chaotic) or '-'})")
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("name", ["merge-v0"])
+@pytest.mark.parametrize("name", ["merge-v0", "roundabout-v0"])
 @pytest.mark.parametrize("k", [1, 3])
 def test_parity_full(name, k, x64):
     """30 random-action episodes per configuration, to the end of the episode."""
@@ -136,7 +174,7 @@ def float32_agreement(name, k, episodes=30):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("name", ["merge-v0"])
+@pytest.mark.parametrize("name", ["merge-v0", "roundabout-v0"])
 @pytest.mark.parametrize("k", [1, 3])
 def test_float32_events(name, k):
     """float32: most episodes keep highway-env's events (the others part at a round-off tie: a closest-lane

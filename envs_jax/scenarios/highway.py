@@ -206,7 +206,8 @@ def _int(name, key, value, lo, hi=None):
 
 
 def _number(name, key, value, positive=False):
-    if isinstance(value, bool) or not np.isscalar(value) or not np.isfinite(float(value)):
+    if (isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating))
+            or not np.isfinite(float(value))):
         raise ValueError(f"{name}: {key} must be a finite number, got {value!r}")
     if positive and not float(value) > 0:
         raise ValueError(f"{name}: {key} must be > 0, got {value!r}")
