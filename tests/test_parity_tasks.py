@@ -177,8 +177,8 @@ def float32_agreement(name, k, episodes=30):
 @pytest.mark.parametrize("name", ["merge-v0", "roundabout-v0"])
 @pytest.mark.parametrize("k", [1, 3])
 def test_float32_events(name, k):
-    """float32: most episodes keep highway-env's events (the others part at a round-off tie: a closest-lane
-    tie where the ramp joins the merge lane, or two separating axes tied on impact)."""
+    """float32: most episodes keep highway-env's events; the others part at a contact decided by round-off
+    (docs/parity.md, traffic tasks)."""
     agree, err = float32_agreement(name, k)
     print(f"\n{name} K={k} float32: {agree}/30 episodes with identical events, worst x error among them "
           f"{err:.1e} m")
