@@ -12,8 +12,10 @@ from envs_jax.registry import available_scenarios, available_tasks, make, regist
 from envs_jax.scenarios.highway import make_highway
 from envs_jax.scenarios.intersection import Intersection
 from envs_jax.scenarios.merge import Merge
+from envs_jax.scenarios.merge_traffic import make_merge
 from envs_jax.scenarios.racetrack import Racetrack
 from envs_jax.scenarios.roundabout import Roundabout
+from envs_jax.scenarios.roundabout_traffic import make_roundabout
 from envs_jax.wrappers import AutoResetWrapper, rollout
 
 register("merge", Merge)
@@ -22,5 +24,7 @@ register("intersection", Intersection)
 register("racetrack", Racetrack)
 register_task("highway-v0", make_highway)
 register_task("highway-fast-v0", make_highway)
+register_task("merge-v0", make_merge)
+register_task("roundabout-v0", make_roundabout)
 
 __all__ = ["make", "available_scenarios", "available_tasks", "register", "register_task", "DrivingEnv", "EnvParams", "EnvState", "AutoResetWrapper", "rollout"]

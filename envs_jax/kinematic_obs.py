@@ -143,8 +143,11 @@ def feature_table(road: Road, st: TrafficState, obstacles):
     return jnp.concatenate([rows, orows], axis=0)
 
 
-def observe_one(cfg: KinematicsConfig, road: Road, st: TrafficState, table, observer, obstacles, key):
-    """Observation of the vehicle in slot ``observer`` (traced int): ``[vehicles_count, F]``."""
+def observe_one(cfg: KinematicsConfig, road: Road, st: TrafficState, table, observer, obstacles, key,
+                range_lanes=None):
+    """Observation of the vehicle in slot ``observer`` (traced int): ``[vehicles_count, F]``.
+
+    ``range_lanes``: lane count of the default ``y`` range (None: the observer's current road)."""
     lanes = road.lanes
     n_slots = st.x.shape[0]
     n_obj = table.shape[0]
@@ -179,7 +182,8 @@ def observe_one(cfg: KinematicsConfig, road: Road, st: TrafficState, table, obse
     cols = [_COL[f] for f in cfg.features]
     rows = rows[:, np.asarray(cols, np.int32)]
     if cfg.normalize:
-        rng = default_ranges(road, st.lane[observer]) if cfg.features_range is None else dict(cfg.features_range)
+        rng = (default_ranges(road, st.lane[observer], range_lanes) if cfg.features_range is None
+               else dict(cfg.features_range))
         for j, f in enumerate(cfg.features):
             if f in rng:
                 lo, hi = rng[f]
@@ -192,18 +196,26 @@ def observe_one(cfg: KinematicsConfig, road: Road, st: TrafficState, table, obse
     return obs.astype(jnp.float32)
 
 
-def default_ranges(road: Road, lane):
-    """highway-env's default ``features_range`` for an observer on ``lane``."""
-    n_lanes = jnp.asarray(road.road_num_lanes)[jnp.asarray(road.lane_road)[lane]]
+def default_ranges(road: Road, lane, n_lanes=None):
+    """highway-env's default ``features_range`` for an observer on ``lane`` (or with ``n_lanes`` side lanes)."""
+    if n_lanes is None:
+        n_lanes = jnp.asarray(road.road_num_lanes)[jnp.asarray(road.lane_road)[lane]]
     y = L.DEFAULT_WIDTH * n_lanes
     return {"x": (-5.0 * Veh.MAX_SPEED, 5.0 * Veh.MAX_SPEED), "y": (-y, y),
             "vx": (-2 * Veh.MAX_SPEED, 2 * Veh.MAX_SPEED), "vy": (-2 * Veh.MAX_SPEED, 2 * Veh.MAX_SPEED)}
 
 
-def observe(cfg: KinematicsConfig, road: Road, st: TrafficState, observers, obstacles=None, key=None):
-    """``MultiAgentObservation``: ``[K, vehicles_count, F]`` float32, one per slot of ``observers``."""
+def observe(cfg: KinematicsConfig, road: Road, st: TrafficState, observers, obstacles=None, key=None,
+            range_lanes=None):
+    """``MultiAgentObservation``: ``[K, vehicles_count, F]`` float32, one per slot of ``observers``.
+
+    ``range_lanes``: optional static ``[K]`` lane counts of the default ``y`` range per observer
+    (highway-env fixes it at an observer's first observation: the road it starts on)."""
     table = feature_table(road, st, obstacles)
     observers = jnp.asarray(np.asarray(observers, np.int32))
     key = jax.random.key(0) if key is None else key
     keys = jax.random.split(key, observers.shape[0])
-    return jax.vmap(lambda o, k: observe_one(cfg, road, st, table, o, obstacles, k))(observers, keys)
+    if range_lanes is None:
+        return jax.vmap(lambda o, k: observe_one(cfg, road, st, table, o, obstacles, k))(observers, keys)
+    n = jnp.asarray(np.asarray(range_lanes, np.int32))
+    return jax.vmap(lambda o, k, m: observe_one(cfg, road, st, table, o, obstacles, k, m))(observers, keys, n)

@@ -59,6 +59,7 @@ class Task:
     route_length: int = 1
     obs_config: kinematic_obs.KinematicsConfig = kinematic_obs.KinematicsConfig()
     check_collisions: Any = None  # static [V] flags (None: all)
+    obs_range_lanes: Any = None  # static [K] lane counts of the default observation y range (None: current road)
 
     def default_params(self) -> TrafficParams:
         raise NotImplementedError
@@ -165,7 +166,7 @@ class TrafficEnv:
 
     def observe(self, state: TrafficState, params, key=None):
         return kinematic_obs.observe(self.obs_config, self.road, state, self.controlled,
-                                     self._obstacles(params, state.x.dtype), key)
+                                     self._obstacles(params, state.x.dtype), key, self.task.obs_range_lanes)
 
     @staticmethod
     def _obstacles(params, dtype):

@@ -1,17 +1,19 @@
-"""highway-env oracle of the traffic tasks (``highway-v0``, ``highway-fast-v0``) with K controlled vehicles.
+"""highway-env oracle of the traffic tasks (``highway-v0``, ``highway-fast-v0``, ``merge-v0``, ``roundabout-v0``)
+with K controlled vehicles.
 
 highway-env runs its own task (its ``HighwayEnv`` / ``HighwayEnvFast`` classes, its
 ``IDMVehicle`` drivers, its ``road.act`` / ``road.step`` order) from an initial state
 *injected* from the JAX simulator: every vehicle's position, heading, speed and list
-position, the drivers' randomised exponent ``DELTA``, the lane-change timers (checked
-against highway-env's own formula) and the controlled vehicles' target speeds.
+position, the drivers' randomised exponent ``DELTA`` and target speeds, the lane-change
+timers (checked against highway-env's own formula), the controlled vehicles' target
+speeds and the planned routes (checked against highway-env's own ``plan_route_to``).
 After every simulation frame every vehicle is recorded; after every step the
 observations, per-agent rewards and terminations.
 
 Per-agent outcomes: highway-env's ``_reward`` / ``_is_terminated`` read
 ``self.vehicle`` (the first controlled vehicle); agent k's values are those
-functions evaluated with vehicle k first (k = 0 is exactly what ``env.step``
-returns, which is checked).
+functions evaluated with vehicle k first and agent k's own action (with one agent,
+exactly what ``env.step`` returns, which is checked).
 
 highway-env is imported here only; it must never be imported outside ``tests/``.
 """
@@ -21,15 +23,19 @@ from __future__ import annotations
 import numpy as np
 
 from highway_env.envs.highway_env import HighwayEnv, HighwayEnvFast
+from highway_env.envs.merge_env import MergeEnv
+from highway_env.envs.roundabout_env import RoundaboutEnv
 from highway_env.vehicle.behavior import IDMVehicle
 
-CLASSES = {"highway-v0": HighwayEnv, "highway-fast-v0": HighwayEnvFast}
+CLASSES = {"highway-v0": HighwayEnv, "highway-fast-v0": HighwayEnvFast, "merge-v0": MergeEnv,
+           "roundabout-v0": RoundaboutEnv}
 
 
 def oracle_config(name: str, controlled: int, observation: dict | None = None, **extra) -> dict:
     """highway-env config of a task with ``controlled`` agents (multi-agent action/observation when > 1)."""
-    obs = observation or {"type": "Kinematics"}
-    action = {"type": "DiscreteMetaAction"}
+    defaults = CLASSES[name].default_config()
+    obs = observation or defaults["observation"]
+    action = defaults["action"]
     cfg = {"controlled_vehicles": controlled}
     if controlled > 1:
         cfg["observation"] = {"type": "MultiAgentObservation", "observation_config": obs}
@@ -51,10 +57,12 @@ def lane_numbers(network) -> dict:
     return out
 
 
-def inject(env, init: dict, controlled: tuple) -> list:
+def inject(env, init: dict, controlled: tuple, routes: dict | None = None) -> list:
     """Replace the vehicles of a reset ``env`` by the JAX initial state ``init`` (numpy, per slot).
 
-    Returns the lane-change timers highway-env computed itself for the IDM vehicles (slot order).
+    ``routes``: slot -> planned route (list of ``(from, to, id or None)``); each is checked against
+    highway-env's own ``plan_route_to`` its last node. Returns the lane-change timers highway-env
+    computed itself for the IDM vehicles (slot order).
     """
     road = env.road
     vehicle_class = env.action_type.vehicle_class
@@ -68,9 +76,14 @@ def inject(env, init: dict, controlled: tuple) -> list:
         else:
             veh = IDMVehicle(road, pos, h, v)
             veh.DELTA = float(init["delta"][i])
+            veh.target_speed = float(init["target_speed"][i])
             timers.append(veh.timer)
             if isinstance(env, HighwayEnvFast):
                 veh.check_collisions = False
+        if routes and routes.get(int(i)):
+            route = [tuple(step) for step in routes[int(i)]]
+            veh.plan_route_to(route[-1][1])
+            assert veh.route == route, (i, veh.route, route)
         vehicles.append(veh)
     road.vehicles = vehicles
     env.controlled_vehicles = ctrl
@@ -78,26 +91,28 @@ def inject(env, init: dict, controlled: tuple) -> list:
     return timers
 
 
-def agent_outcomes(env, action) -> tuple:
-    """Per-agent ``(_reward, _is_terminated, _rewards)`` with each controlled vehicle taken as ``env.vehicle``."""
+def agent_outcomes(env, actions) -> tuple:
+    """Per-agent ``(_reward, _is_terminated, _rewards)`` with each controlled vehicle taken as ``env.vehicle``
+    and ``actions[k]`` (its own action) as the action."""
     vehicles = list(env.controlled_vehicles)
     rewards, terms, parts = [], [], []
     try:
         for k in range(len(vehicles)):
             env.controlled_vehicles = [vehicles[k]] + vehicles[:k] + vehicles[k + 1:]
-            rewards.append(env._reward(action))
+            rewards.append(env._reward(actions[k]))
             terms.append(bool(env._is_terminated()))
-            parts.append(env._rewards(action))
+            parts.append(env._rewards(actions[k]))
     finally:
         env.controlled_vehicles = vehicles
     return np.array(rewards), np.array(terms), parts
 
 
-def run_oracle(name: str, init: dict, controlled: tuple, actions, config: dict, steps: int | None = None) -> dict:
+def run_oracle(name: str, init: dict, controlled: tuple, actions, config: dict, steps: int | None = None,
+               routes: dict | None = None) -> dict:
     """Run ``actions`` (``[T, K]`` ints) from the injected state; records as documented in the module."""
     env = CLASSES[name](config=config)
     env.reset(seed=0)
-    timers = inject(env, init, controlled)
+    timers = inject(env, init, controlled, routes)
     lanes = lane_numbers(env.road.network)
     vehicles = list(env.road.vehicles)
     frames = []
@@ -128,7 +143,7 @@ def run_oracle(name: str, init: dict, controlled: tuple, actions, config: dict, 
             break
         act = int(a[0]) if k == 1 else tuple(int(u) for u in a)
         obs, reward, terminated, truncated, _ = env.step(act)
-        rewards, terms, parts = agent_outcomes(env, act)
+        rewards, terms, parts = agent_outcomes(env, [int(u) for u in a])
         out["obs"].append(np.asarray(obs))
         out["reward"].append(rewards)
         out["terminated"].append(terms)

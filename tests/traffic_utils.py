@@ -44,7 +44,8 @@ def run_jax(name: str, seed: int, actions, **overrides) -> dict:
     done = np.asarray(out["done"])
     length = int(np.argmax(done) + 1) if done.any() else len(done)
     init = {k: np.asarray(getattr(st0, k)) for k in ("x", "y", "heading", "speed", "alive", "delta", "timer",
-                                                      "target_speed", "lane", "target_lane")}
+                                                      "target_speed", "lane", "target_lane", "route_roads",
+                                                      "route_ids", "route_len")}
     res = {"env": env, "init": init, "length": length, "obs": np.concatenate([np.asarray(obs0)[None],
                                                                              np.asarray(out["obs"])[:length]])}
     for k in ("reward", "cost", "done", "terminated", "truncated"):

@@ -206,7 +206,8 @@ def _int(name, key, value, lo, hi=None):
 
 
 def _number(name, key, value, positive=False):
-    if isinstance(value, bool) or not np.isscalar(value) or not np.isfinite(float(value)):
+    if (isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating))
+            or not np.isfinite(float(value))):
         raise ValueError(f"{name}: {key} must be a finite number, got {value!r}")
     if positive and not float(value) > 0:
         raise ValueError(f"{name}: {key} must be > 0, got {value!r}")
@@ -251,6 +252,21 @@ def _action(name, value):
 def _observation(name, value):
     obs = _unwrap(name, "observation", value, "MultiAgentObservation", "observation_config")
     return kinematic_obs.KinematicsConfig.from_config(obs, where=f"{name}: observation")
+
+
+def _idm(name, idm):
+    """The ``idm`` key: None (highway-env's constants), an IDMParams or a dict of its fields."""
+    if idm is None:
+        return IDMParams()
+    if isinstance(idm, dict):
+        fields = {f.name for f in dataclasses.fields(IDMParams)}
+        bad = sorted(set(idm) - fields)
+        if bad:
+            raise ValueError(f"{name}: unknown idm field(s) {bad}; allowed: {sorted(fields)}")
+        idm = IDMParams(**idm)
+    if not isinstance(idm, IDMParams):
+        raise ValueError(f"{name}: idm must be an IDMParams or a dict of its fields, got {type(idm).__name__}")
+    return idm
 
 
 def make_highway(name: str, env_config: dict | None = None, **overrides) -> TrafficEnv:
@@ -301,15 +317,7 @@ def make_highway(name: str, env_config: dict | None = None, **overrides) -> Traf
     for key in ("normalize_reward", "offroad_terminal"):
         if not isinstance(cfg[key], (bool, np.bool_)):
             raise ValueError(f"{name}: {key} must be True or False, got {cfg[key]!r}")
-    idm = cfg.get("idm", IDMParams())
-    if isinstance(idm, dict):
-        fields = {f.name for f in dataclasses.fields(IDMParams)}
-        bad = sorted(set(idm) - fields)
-        if bad:
-            raise ValueError(f"{name}: unknown idm field(s) {bad}; allowed: {sorted(fields)}")
-        idm = IDMParams(**idm)
-    if not isinstance(idm, IDMParams):
-        raise ValueError(f"{name}: idm must be an IDMParams or a dict of its fields, got {type(idm).__name__}")
+    idm = _idm(name, cfg.get("idm"))
     task = Highway(name, lanes_count, vehicles_count, k, num_slots, sim, pol, obs_cfg)
     params = HighwayParams(
         duration=_number(name, "duration", cfg["duration"], positive=True),
