@@ -104,13 +104,15 @@ def describe_envpool(task: str) -> dict:
 
 
 def measure_envpool(task: str, num_envs: int, batch_size: int, seconds: float, repeats: int = 3,
-                    num_threads: int | None = None) -> dict:
+                    num_threads: int | None = None, **config) -> dict:
     """Steps per second of EnvPool on ``task``: ``num_envs`` environments on ``num_threads`` threads (default:
-    all cores), ``batch_size`` of them per call (asynchronous when smaller), median over ``repeats`` blocks."""
+    all cores), ``batch_size`` of them per call (asynchronous when smaller), median over ``repeats`` blocks.
+    ``config``: task keys of EnvPool's spec (e.g. ``vehicles_count``)."""
     import envpool
 
     threads = num_threads or os.cpu_count()
-    env = envpool.make_gymnasium(task, num_envs=num_envs, batch_size=batch_size, num_threads=threads, seed=0)
+    env = envpool.make_gymnasium(task, num_envs=num_envs, batch_size=batch_size, num_threads=threads, seed=0,
+                                 **config)
     space = env.action_space
     rng = np.random.default_rng(0)
     sync = batch_size == num_envs
