@@ -7,7 +7,8 @@
 # Sections (each under its own time limit, so one slow or failing section does not cost the others):
 #   1. env_throughput.py: random-action, auto-resetting rollouts of 4,096 to 1,048,576 parallel envs per scenario,
 #      highway-env stepped on the same machine's CPU in the same run for the ratio (highway-env must be importable:
-#      the README's "Throughput on a GPU" section says how it was installed there);
+#      the README's "Throughput on a GPU" section says how it was installed there); the authors' four scenarios
+#      only (--tasks with no names: highway-env's tasks and EnvPool do not fit this section's time limit);
 #   2. train_csq.py: merge CSQ, 1 and 32 seeds (a prefix of the authors' 20k steps);
 #   3. train_maddpg.py: racetrack CS-MADDPG, 1 / 8 / 32 seeds, plus the update alone and its FLOPs;
 #   4. train_onpolicy.py: racetrack, 8 seeds: MAPPO-L and MACPO with the shipped 512 envs per seed, MAPPO-L with
@@ -41,7 +42,7 @@ read -r L_ENV L_CSQ L_MAD L_PPO L_WIDE <<< "$LIM"
   nvidia-smi --query-gpu=name,memory.total,clocks.sm,clocks.max.sm --format=csv 2>/dev/null || echo "no nvidia-smi"
   $py -c "import jax, os; print('jax', jax.__version__, jax.devices(), os.cpu_count(), 'CPUs')"
   section env_throughput $L_ENV $py benchmarks/env_throughput.py --envs $ENVS \
-    --env-steps $ENV_STEPS --repeats 3 --highway-seconds $HW_S --out "$out/env_throughput.json"
+    --env-steps $ENV_STEPS --repeats 3 --highway-seconds $HW_S --tasks --out "$out/env_throughput.json"
   section train_csq $L_CSQ $py benchmarks/train_csq.py --steps $CSQ_STEPS --chunk-steps 2000 \
     --seeds $CSQ_SEEDS --json "$out/train_csq.json"
   section train_maddpg $L_MAD $py benchmarks/train_maddpg.py --steps $MAD_STEPS \
