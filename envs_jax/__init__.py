@@ -13,6 +13,7 @@ from envs_jax.scenarios.highway import make_highway
 from envs_jax.scenarios.intersection import Intersection
 from envs_jax.scenarios.merge import Merge
 from envs_jax.scenarios.racetrack import Racetrack
+from envs_jax.scenarios.racetrack_traffic import make_racetrack
 from envs_jax.scenarios.roundabout import Roundabout
 from envs_jax.wrappers import AutoResetWrapper, rollout
 
@@ -22,5 +23,6 @@ register("intersection", Intersection)
 register("racetrack", Racetrack)
 register_task("highway-v0", make_highway)
 register_task("highway-fast-v0", make_highway)
+register_task("racetrack-v0", make_racetrack)
 
 __all__ = ["make", "available_scenarios", "available_tasks", "register", "register_task", "DrivingEnv", "EnvParams", "EnvState", "AutoResetWrapper", "rollout"]
