@@ -117,7 +117,7 @@ class RacetrackTraffic(Task):
 
     def draws(self, key, params) -> dict:
         """The random numbers of ``_make_vehicles``: ``road [n]``, ``lane_id [n]``, ``frac [n]`` (position
-        along the lane as a fraction of the drawn range), ``speed [n]`` (IDM vehicles) for the K agents
+        along the lane as a fraction of the drawn range), ``speed_u [n]`` (IDM vehicles: speed - 6 m/s) for the K agents
         then the ``other_vehicles`` IDM candidates (the front vehicle first), and ``extra`` (how many of
         the further candidates are drawn)."""
         dtype = L.float_dtype()
@@ -126,9 +126,9 @@ class RacetrackTraffic(Task):
         road = jax.random.randint(k_road, (n,), 0, self.n_roads).at[0].set(0)
         lane_id = jax.random.randint(k_id, (n,), 0, 2)
         frac = jax.random.uniform(k_frac, (n,), dtype)
-        speed = 6.0 + jax.random.uniform(k_speed, (n,), dtype, 0.0, 3.0)
+        speed_u = jax.random.uniform(k_speed, (n,), dtype, 0.0, 3.0)
         extra = jax.random.randint(k_extra, (), 0, max(self.other_vehicles, 1))
-        return dict(road=road, lane_id=lane_id, frac=frac, speed=speed, extra=extra)
+        return dict(road=road, lane_id=lane_id, frac=frac, speed_u=speed_u, extra=extra)
 
     def place(self, draws: dict, params) -> dict:
         """Initial slots from the draws (``make_on_lane``'s arithmetic, the 20 m rejection rule in list order)."""
@@ -153,7 +153,7 @@ class RacetrackTraffic(Task):
             s = s.at[k].set(frac[k] * bc_length)
         x, y = L.position(lanes, lane, s, jnp.zeros_like(s))
         heading = L.heading_at(lanes, lane, s)
-        speed = jnp.where(is_agent, lanes.col("speed_limit")[lane], jnp.asarray(draws["speed"], dtype))
+        speed = jnp.where(is_agent, lanes.col("speed_limit")[lane], 6.0 + jnp.asarray(draws["speed_u"], dtype))
         alive = jnp.ones(n, bool)
         if self.other_vehicles > 1:
             drawn = jnp.arange(n) < k + 1 + jnp.asarray(draws["extra"])
