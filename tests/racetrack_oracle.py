@@ -78,7 +78,7 @@ def agent_outcomes(env, actions, collision_cost: float, offroad_cost: float) -> 
 
 
 def run_oracle(init: dict, controlled: tuple, actions, config: dict, collision_cost: float = 1.0,
-               offroad_cost: float = 0.5) -> dict:
+               offroad_cost: float = 0.5, grid_ties: bool = True) -> dict:
     """Run ``actions`` (``[T, K, d]`` floats) from the injected state; records as documented in the module,
     and with an occupancy grid, ``ties[t][k]``: the :func:`tie_cells` of agent k's observation at step t."""
     env = RacetrackEnv(config=config)
@@ -106,7 +106,7 @@ def run_oracle(init: dict, controlled: tuple, actions, config: dict, collision_c
         record()
 
     env.road.step = step_and_record
-    grid = "OccupancyGrid" in str(config["observation"])
+    grid = grid_ties and "OccupancyGrid" in str(config["observation"])
 
     def ties():
         if not grid:
@@ -176,3 +176,24 @@ def tie_cells(env, observer, others_xy, eps: float = 1e-9) -> set:
                     if 0 <= i < shape[0] and 0 <= j < shape[1]:
                         out.add((i, j))
     return out
+
+
+def lane_tie(network, lanes: dict, x, y, heading, a: int, b: int, tol: float = 1e-9) -> bool:
+    """Whether highway-env's closest-lane distances of lanes ``a`` and ``b`` (global numbers) are tied at a pose
+    (the outer g->h and h->i lanes are one circle between 165 and 170 degrees: round-off picks either)."""
+    names = {v: key for key, v in lanes.items()}
+    pos = np.array([x, y])
+    da = network.get_lane(names[a]).distance_with_heading(pos, heading)
+    db = network.get_lane(names[b]).distance_with_heading(pos, heading)
+    return abs(da - db) <= tol
+
+
+def oracle_sensitivity(init: dict, controlled: tuple, actions, config: dict) -> float:
+    """How far highway-env moves *itself* when every initial x is nudged by one ulp: the largest position
+    gap between the two oracle runs (chaotic cases: cars resting in exact contact after a crash, where
+    whether a third car's impact is overwritten hangs on the last bit)."""
+    base = run_oracle(init, controlled, actions, config, grid_ties=False)
+    nudged = dict(init, x=np.nextafter(np.asarray(init["x"], np.float64), np.inf))
+    moved = run_oracle(nudged, controlled, actions, config, grid_ties=False)
+    n = min(len(base["frames"]["x"]), len(moved["frames"]["x"]))
+    return float(max(np.abs(base["frames"][k][:n] - moved["frames"][k][:n]).max() for k in ("x", "y")))
