@@ -14,6 +14,7 @@ from envs_jax.scenarios.intersection import Intersection
 from envs_jax.scenarios.merge import Merge
 from envs_jax.scenarios.merge_traffic import make_merge
 from envs_jax.scenarios.racetrack import Racetrack
+from envs_jax.scenarios.racetrack_traffic import make_racetrack
 from envs_jax.scenarios.roundabout import Roundabout
 from envs_jax.scenarios.roundabout_traffic import make_roundabout
 from envs_jax.wrappers import AutoResetWrapper, rollout
@@ -26,5 +27,6 @@ register_task("highway-v0", make_highway)
 register_task("highway-fast-v0", make_highway)
 register_task("merge-v0", make_merge)
 register_task("roundabout-v0", make_roundabout)
+register_task("racetrack-v0", make_racetrack)
 
 __all__ = ["make", "available_scenarios", "available_tasks", "register", "register_task", "DrivingEnv", "EnvParams", "EnvState", "AutoResetWrapper", "rollout"]
