@@ -11,6 +11,7 @@ from envs_jax.env import DrivingEnv, EnvParams, EnvState
 from envs_jax.registry import available_scenarios, available_tasks, make, register, register_task
 from envs_jax.scenarios.highway import make_highway
 from envs_jax.scenarios.intersection import Intersection
+from envs_jax.scenarios.intersection_traffic import make_intersection
 from envs_jax.scenarios.merge import Merge
 from envs_jax.scenarios.racetrack import Racetrack
 from envs_jax.scenarios.roundabout import Roundabout
@@ -22,5 +23,7 @@ register("intersection", Intersection)
 register("racetrack", Racetrack)
 register_task("highway-v0", make_highway)
 register_task("highway-fast-v0", make_highway)
+register_task("intersection-v0", make_intersection)
+register_task("intersection-multi-agent-v0", make_intersection)
 
 __all__ = ["make", "available_scenarios", "available_tasks", "register", "register_task", "DrivingEnv", "EnvParams", "EnvState", "AutoResetWrapper", "rollout"]

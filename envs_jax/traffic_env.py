@@ -201,6 +201,10 @@ class TrafficEnv:
 
     def _frame(self, st: TrafficState, params, obstacles, dt):
         st = drivers.road_act(self.road, st, self.is_idm, self.is_mdp, params.idm, obstacles)
+        return self._road_step(st, obstacles, dt)
+
+    def _road_step(self, st: TrafficState, obstacles, dt):
+        """``road.step(dt)``: kinematics of the alive slots, their lanes, then the collision loop."""
         x, y, h, v, crashed, steering, acceleration = Veh.bicycle_step(
             st.x, st.y, st.heading, st.speed, st.steering, st.acceleration, st.crashed,
             st.impact[:, 0], st.impact[:, 1], st.has_impact, dt)
