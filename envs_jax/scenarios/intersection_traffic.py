@@ -172,9 +172,10 @@ class IntersectionTraffic(Task):
         """The draws of ``n`` spawn attempts, in ``_spawn_vehicle``'s order: ``u`` (the spawn test),
         ``route`` (arm, exit: two different arms), ``z_position``, ``z_speed`` (standard normals) and
         ``u_delta`` (``randomize_behavior``'s uniform)."""
-        k_u, k_r, k_p, k_s, k_d = jax.random.split(key, 5)
-        keys = jax.random.split(k_r, n)
-        route = jax.vmap(lambda k: jax.random.choice(k, 4, (2,), replace=False))(keys).astype(jnp.int32)
+        k_u, k_a, k_e, k_p, k_s, k_d = jax.random.split(key, 6)
+        arm = jax.random.randint(k_a, (n,), 0, 4)
+        exit_arm = (arm + jax.random.randint(k_e, (n,), 1, 4)) % 4  # uniform over the ordered pairs, as choice
+        route = jnp.stack([arm, exit_arm], axis=-1).astype(jnp.int32)
         return dict(u=jax.random.uniform(k_u, (n,), dtype), route=route,
                     z_position=jax.random.normal(k_p, (n,), dtype), z_speed=jax.random.normal(k_s, (n,), dtype),
                     u_delta=jax.random.uniform(k_d, (n,), dtype))
@@ -207,14 +208,17 @@ class IntersectionTraffic(Task):
             spawn_skipped=jnp.zeros((), jnp.int32), order=zi, next_order=jnp.zeros((), jnp.int32))
 
     def put(self, st: IntersectionState, where, x, y, heading, speed, target_speed, delta, arm, dest, params):
-        """New vehicles (highway-env's constructor state) in the slots flagged by ``where`` ``[V]``, appended to
-        the list in slot order."""
+        """A new vehicle (highway-env's constructor state) in the slot flagged by ``where`` ``[V]`` (none or one),
+        appended to the list."""
         lanes = self.road.lanes
         v = self.num_slots
         bx = lambda a: jnp.broadcast_to(jnp.asarray(a, st.x.dtype), (v,))
-        x, y, heading = bx(x), bx(y), bx(heading)
-        lane, s, lat, _ = L.locate(lanes, x, y, heading)
+        # the closest lane of the new poses only (one, or one per agent), then spread over the slots
+        pose = [jnp.atleast_1d(jnp.asarray(a, st.x.dtype)) for a in (x, y, heading)]
+        lane, s, lat, _ = L.locate(lanes, *pose)
         on_road = L.on_lane_coords(lanes.col("length")[lane], lanes.col("width")[lane], s, lat)
+        lane, on_road = jnp.broadcast_to(lane, (v,)), jnp.broadcast_to(on_road, (v,))
+        x, y, heading = bx(x), bx(y), bx(heading)
         timer = jnp.mod((x + y) * jnp.pi, params.idm.lane_change_delay)
         rr = jnp.asarray(self.route_roads)[arm, dest]
         ri = jnp.asarray(self.route_ids)[arm, dest]
@@ -283,12 +287,10 @@ class IntersectionTraffic(Task):
         heading = L.heading_at(lanes, lane, jnp.full_like(s, 60.0))
         speed = lanes.col("speed_limit")[lane]
         dest = jnp.where(params.destination >= 0, params.destination, destination)
-        v = self.num_slots
-        pad = lambda a: jnp.concatenate([a, jnp.zeros((v - k,) + a.shape[1:], a.dtype)])
-        arm_slots = pad(jnp.asarray(arms, jnp.int32))
-        dest_slots = pad(dest.astype(jnp.int32))
-        st = self.put(st, jnp.asarray(self.is_controlled), pad(x), pad(y), pad(heading), pad(speed), pad(speed),
-                      params.idm.delta, arm_slots, dest_slots, params)
+        for i in range(k):  # appended one after the other
+            where = jnp.arange(self.num_slots) == i
+            st = self.put(st, where, x[i], y[i], heading[i], speed[i], speed[i], params.idm.delta, int(arms[i]),
+                          dest[i].astype(jnp.int32), params)
         ts = jnp.asarray(params.target_speeds, dtype)
         index = jax.vmap(Veh.speed_to_index, in_axes=(0, None))(st.speed, ts)
         ctrl = jnp.asarray(self.is_controlled)
@@ -415,8 +417,12 @@ class IntersectionTrafficEnv(TrafficEnv):
         table = kinematic_obs.feature_table(self.road, listed, None)
         key = jax.random.key(0) if key is None else key
         keys = jax.random.split(key, self.num_agents)
-        return jax.vmap(lambda o, k: kinematic_obs.observe_one(self.obs_config, self.road, listed, table, o, None, k))(
+        obs = jax.vmap(lambda o, k: kinematic_obs.observe_one(self.obs_config, self.road, listed, table, o, None, k))(
             observers, keys)
+        missing = self.obs_config.vehicles_count - obs.shape[1]  # a pool smaller than the observed count
+        if missing > 0:
+            obs = jnp.concatenate([obs, jnp.zeros((obs.shape[0], missing, obs.shape[2]), obs.dtype)], axis=1)
+        return obs
 
     def check_action(self, action):
         """Integers of shape ``[K]`` in ``0..2`` (SLOWER, IDLE, FASTER)."""
