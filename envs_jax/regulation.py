@@ -14,8 +14,9 @@ creation, warm-up included), after ``road.act()`` and before the kinematics,
    stops (target speed 0) if it is an IDM driver (``ControlledVehicle`` but not
    ``MDPVehicle``).
 
-The pair decisions only set flags, so their loop order does not matter and all
-pairs are evaluated at once as a ``[V, V]`` matrix (docs/scenarios.md,
+The pair decisions only set flags, so the loop order matters only through which
+vehicle of a pair is ``v1`` (the tie rule of :func:`yielding_side`); all pairs are
+evaluated at once as a ``[V, V]`` matrix (docs/scenarios.md,
 "intersection-v0 with traffic").
 """
 
@@ -130,11 +131,13 @@ def yielding_side(priority, x, y, heading):
     return jnp.where(pi != pj, pi < pj, front_ij > front_ji)
 
 
-def enforce_road_rules(road: Road, st: TrafficState, yielding, yield_timer, priority, is_idm):
+def enforce_road_rules(road: Road, st: TrafficState, yielding, yield_timer, priority, is_idm, order=None):
     """One ``enforce_road_rules``: ``(target_speed, yielding, yield_timer)`` after releases and new yields.
 
     ``priority``: static ``[lanes]`` lane priorities; ``is_idm``: static ``[V]`` flags of the slots
-    that can be made to yield.
+    that can be made to yield; ``order``: ``[V]`` positions in ``road.vehicles`` (default: slot order),
+    which decide the pair's ``v1`` and so the vehicle that yields on an exact front-distance tie
+    (vehicles face to face on one axis-aligned line).
     """
     speed_limit = road.lanes.col("speed_limit")[st.lane]
     release = st.alive & yielding & (yield_timer >= YIELD_DURATION * REGULATION_FREQUENCY)
@@ -145,7 +148,10 @@ def enforce_road_rules(road: Road, st: TrafficState, yielding, yield_timer, prio
     times = jnp.asarray(PREDICTION_TIMES, st.x.dtype)
     px, py, ph = predict_along_route(road, st, times)
     n = st.x.shape[0]
-    upper = jnp.asarray(np.triu(np.ones((n, n), bool), 1))
+    if order is None:
+        upper = jnp.asarray(np.triu(np.ones((n, n), bool), 1))
+    else:
+        upper = order[:, None] < order[None, :]
     pair = upper & st.alive[:, None] & st.alive[None, :] & conflicts(px, py, ph)
     prio = jnp.asarray(priority)[st.lane]
     i_yields = yielding_side(prio, st.x, st.y, st.heading)

@@ -38,7 +38,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from envs_jax import drivers, kinematic_obs, regulation
+from envs_jax import drivers, kinematic_obs, pair_collisions, regulation
 from envs_jax import lanes as L
 from envs_jax import vehicle as Veh
 from envs_jax.idm import IDMParams
@@ -371,7 +371,7 @@ class IntersectionTrafficEnv(TrafficEnv):
         steps = st.road_steps + 1
         due = steps % self.task.period == 0
         ts, yl, yt = regulation.enforce_road_rules(self.road, st, st.yielding, st.yield_timer, self.task.priority,
-                                                   self.is_idm)
+                                                   self.is_idm, st.order)
         st = st.replace(target_speed=jnp.where(due, ts, st.target_speed), yielding=jnp.where(due, yl, st.yielding),
                         yield_timer=jnp.where(due, yt, st.yield_timer), road_steps=steps)
         return self._road_step(st, obstacles, dt)
@@ -408,10 +408,22 @@ class IntersectionTrafficEnv(TrafficEnv):
                     vehicles=jnp.sum(state.alive).astype(jnp.int32))
         return obs, state, reward, cost, done, info, trajectory
 
+    def _list_order(self, state):
+        """Slots sorted by their position in highway-env's ``road.vehicles`` (empty slots last)."""
+        return jnp.argsort(jnp.where(state.alive, state.order, jnp.iinfo(jnp.int32).max), stable=True)
+
+    def _collide(self, st, x, y, h, v, alive, crashed, obstacles, dt):
+        """The collision loop in list order (a vehicle's impact is that of its last colliding pair in the loop)."""
+        perm = self._list_order(st)
+        inv = jnp.argsort(perm)
+        impact, has_impact, crashed = pair_collisions.collide(x[perm], y[perm], h[perm], v[perm], alive[perm],
+                                                              crashed[perm], self.check_collisions, obstacles, dt)
+        return impact[inv], has_impact[inv], crashed[inv]
+
     def observe(self, state, params, key=None):
         """The observations with the vehicles in highway-env's list order (it breaks distance ties)."""
         n = self.num_slots
-        perm = jnp.argsort(jnp.where(state.alive, state.order, jnp.iinfo(jnp.int32).max), stable=True)
+        perm = self._list_order(state)
         listed = jax.tree_util.tree_map(lambda a: a[perm] if (a.ndim >= 1 and a.shape[0] == n) else a, state)
         observers = jnp.argsort(perm)[jnp.asarray(self.controlled)]
         table = kinematic_obs.feature_table(self.road, listed, None)
