@@ -6,7 +6,7 @@ road after any simulation frame. ``envs_jax``'s default pool (``default_num_slot
 initial_vehicle_count + one spawn per step) is an upper bound no default episode can exceed; this
 script shows how much room it leaves.
 
-    python -m benchmarks.intersection_pool --episodes 300 --out benchmarks/results/intersection_pool.json
+    python -m benchmarks.intersection_pool --episodes 100 --out benchmarks/results/intersection_pool.json
 """
 
 from __future__ import annotations
@@ -54,12 +54,15 @@ def run(k: int, episodes: int, seed0: int) -> dict:
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--episodes", type=int, default=300)
+    ap.add_argument("--episodes", type=int, default=100)
     ap.add_argument("--agents", type=int, nargs="+", default=[1, 2, 4])
     ap.add_argument("--out", default=None)
     args = ap.parse_args()
     t0 = time.time()
-    rows = [run(k, args.episodes, 1000) for k in args.agents]
+    rows = []
+    for k in args.agents:
+        rows.append(run(k, args.episodes, 1000))
+        print(json.dumps(rows[-1]), flush=True)
     out = {"task": "intersection-v0 / intersection-multi-agent-v0 (highway-env 1.12.1, own RNG, random actions, "
                    "until terminated or truncated)", "rows": rows, "seconds": round(time.time() - t0, 1)}
     print(json.dumps(out, indent=1))
