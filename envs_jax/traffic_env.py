@@ -202,6 +202,10 @@ class TrafficEnv:
 
     def _frame(self, st: TrafficState, params, obstacles, dt):
         st = drivers.road_act(self.road, st, self.is_idm, self.is_mdp, params.idm, obstacles)
+        return self._road_step(st, obstacles, dt)
+
+    def _road_step(self, st: TrafficState, obstacles, dt):
+        """``road.step(dt)``: kinematics of the alive slots, their lanes, then the collision loop."""
         x, y, h, v, crashed, steering, acceleration = Veh.bicycle_step(
             st.x, st.y, st.heading, st.speed, st.steering, st.acceleration, st.crashed,
             st.impact[:, 0], st.impact[:, 1], st.has_impact, dt)
@@ -215,11 +219,14 @@ class TrafficEnv:
         on_road = L.on_lane_coords(lanes.col("length")[lane], lanes.col("width")[lane], s, lat)
         lane, on_road = keep(lane, st.lane), keep(on_road, st.on_road)
         ob = None if obstacles is None else obstacles[:, :5]
-        impact, has_impact, crashed = pair_collisions.collide(x, y, h, v, alive, crashed, self.check_collisions,
-                                                              ob, dt)
+        impact, has_impact, crashed = self._collide(st, x, y, h, v, alive, crashed, ob, dt)
         return st.replace(x=x, y=y, heading=h, speed=v, crashed=crashed, on_road=on_road, lane=lane,
                           steering=keep(steering, st.steering), acceleration=keep(acceleration, st.acceleration),
                           impact=impact, has_impact=has_impact, timer=timer)
+
+    def _collide(self, st, x, y, h, v, alive, crashed, obstacles, dt):
+        """The collision loop over the slots in list order (= slot order here)."""
+        return pair_collisions.collide(x, y, h, v, alive, crashed, self.check_collisions, obstacles, dt)
 
     def _step(self, key, state, action, params, record):
         prev = state

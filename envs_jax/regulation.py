@@ -1,0 +1,163 @@
+"""highway-env's ``RegulatedRoad`` (``road/regulation.py``): right of way at a junction, branch-free.
+
+Every ``int(1 / dt / REGULATION_FREQUENCY)`` road steps (counted from the road's
+creation, warm-up included), after ``road.act()`` and before the kinematics,
+``enforce_road_rules``:
+
+1. releases the yielding vehicles whose yield timer has run
+   ``YIELD_DURATION * REGULATION_FREQUENCY`` checks (target speed back to their
+   lane's speed limit), the others' timers count one more check;
+2. for every pair of vehicles ``i < j`` whose constant-speed predictions along their
+   routes (:func:`predict_along_route`) come within a rectangle overlap over the
+   horizon (:func:`conflicts`), the vehicle that must give way
+   (:func:`yielding_side`: lower lane priority, or on equal priority the one behind)
+   stops (target speed 0) if it is an IDM driver (``ControlledVehicle`` but not
+   ``MDPVehicle``).
+
+The pair decisions only set flags, so the loop order matters only through which
+vehicle of a pair is ``v1`` (the tie rule of :func:`yielding_side`); all pairs are
+evaluated at once as a ``[V, V]`` matrix (docs/scenarios.md,
+"intersection-v0 with traffic").
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+import numpy as np
+
+from envs_jax import lanes as L
+from envs_jax import vehicle as Veh
+from envs_jax.road import Road
+from envs_jax.traffic_state import TrafficState
+
+REGULATION_FREQUENCY = 2  # [Hz] RegulatedRoad.REGULATION_FREQUENCY
+YIELD_DURATION = 0.0  # [s] RegulatedRoad.YIELD_DURATION
+HORIZON = 3  # [s] is_conflict_possible's horizon
+STEP = 0.25  # [s] is_conflict_possible's step
+PREDICTION_TIMES = np.arange(STEP, HORIZON, STEP)  # np.arange(step, horizon, step), as highway-env builds it
+CONFLICT_LENGTH = 1.5 * Veh.LENGTH  # the predicted rectangles: 1.5 x length, 0.9 x width
+CONFLICT_WIDTH = 0.9 * Veh.WIDTH
+
+
+def regulation_period(simulation_frequency: int) -> int:
+    """Road steps between two ``enforce_road_rules`` calls: ``int(1 / dt / REGULATION_FREQUENCY)``."""
+    dt = 1 / simulation_frequency
+    return int(1 / dt / REGULATION_FREQUENCY)
+
+
+def predict_along_route(road: Road, st: TrafficState, times):
+    """``ControlledVehicle.predict_trajectory_constant_speed(times)`` for every slot: ``(x, y, heading)`` ``[V, T]``.
+
+    The start is the longitudinal coordinate on the *current* lane plus ``speed * t``;
+    it is walked along the remaining route (or the current lane when the route is
+    empty), moving to the next entry while more than one entry remains and the
+    coordinate exceeds the entry's lane length. Route entries without a lane id take
+    the current lane's id.
+    """
+    lanes = road.lanes
+    s0, _ = L.local_coordinates(lanes, st.lane, st.x, st.y)
+    longitudinal = s0[:, None] + st.speed[:, None] * times[None, :]
+    road_lanes = jnp.asarray(road.road_lanes)
+    road_num = jnp.asarray(road.road_num_lanes)
+    cur_id = jnp.asarray(road.lane_id)[st.lane]
+    n_route = st.route_roads.shape[-1]
+    has_route = st.route_ptr < st.route_len
+    remaining = jnp.where(has_route, st.route_len - st.route_ptr, 1)
+
+    slot = jnp.arange(st.x.shape[0])[:, None]
+
+    def entry_lane(ptr):  # [V, T]
+        k = jnp.clip(ptr, 0, n_route - 1)
+        r = jnp.maximum(st.route_roads[slot, k], 0)
+        i = st.route_ids[slot, k]
+        i = jnp.where(i >= 0, i, cur_id[:, None])
+        i = jnp.minimum(i, road_num[r] - 1)
+        return jnp.where(has_route[:, None], road_lanes[r, i], st.lane[:, None])
+
+    shape = longitudinal.shape
+    ptr = jnp.broadcast_to(st.route_ptr[:, None], shape)
+    remaining = jnp.broadcast_to(remaining[:, None], shape)
+    lane = entry_lane(ptr)
+    length = lanes.col("length")
+    for _ in range(n_route - 1):
+        more = (remaining > 1) & (longitudinal > length[lane])
+        longitudinal = jnp.where(more, longitudinal - length[lane], longitudinal)
+        ptr = ptr + more
+        remaining = remaining - more
+        lane = entry_lane(ptr)
+    x, y = L.position(lanes, lane, longitudinal, jnp.zeros_like(longitudinal))
+    heading = L.heading_at(lanes, lane, longitudinal)
+    return x, y, heading
+
+
+def _corners(x, y, heading):
+    """``rect_corners(center, 1.5 L, 0.9 W, heading, include_midpoints=True, include_center=True)``: ``[..., 9, 2]``."""
+    hl, hw = CONFLICT_LENGTH / 2, CONFLICT_WIDTH / 2
+    local = np.array([[-hl, -hw], [-hl, hw], [hl, hw], [hl, -hw], [0, 0], [-hl, 0], [hl, 0], [0, -hw], [0, hw]])
+    c, s = jnp.cos(heading)[..., None], jnp.sin(heading)[..., None]
+    lx, ly = jnp.asarray(local[:, 0], x.dtype), jnp.asarray(local[:, 1], x.dtype)
+    return c * lx - s * ly + x[..., None], s * lx + c * ly + y[..., None]
+
+
+def _inside(px, py, x, y, heading):
+    """``point_in_rotated_rectangle(p, center, 1.5 L, 0.9 W, heading)`` (highway-env rotates ``p - center`` by
+    ``+heading``), inclusive bounds; ``p`` ``[..., 9]``, the rectangle ``[...]``."""
+    c, s = jnp.cos(heading)[..., None], jnp.sin(heading)[..., None]
+    dx, dy = px - x[..., None], py - y[..., None]
+    u, v = c * dx - s * dy, s * dx + c * dy
+    hl, hw = CONFLICT_LENGTH / 2, CONFLICT_WIDTH / 2
+    return (-hl <= u) & (u <= hl) & (-hw <= v) & (v <= hw)
+
+
+def conflicts(px, py, ph):
+    """``is_conflict_possible`` for every pair: ``[V, V]`` (symmetric) from predictions ``[V, T]``."""
+    xi, yi, hi = px[:, None, :], py[:, None, :], ph[:, None, :]
+    xj, yj, hj = px[None, :, :], py[None, :, :], ph[None, :, :]
+    dx, dy = xj - xi, yj - yi
+    near = ~(jnp.sqrt(dx * dx + dy * dy) > Veh.LENGTH)
+    cxi, cyi = _corners(px, py, ph)  # [V, T, 9]
+    i_in_j = jnp.any(_inside(cxi[:, None], cyi[:, None], xj, yj, hj), axis=-1)
+    j_in_i = jnp.any(_inside(cxi[None, :], cyi[None, :], xi, yi, hi), axis=-1)
+    return jnp.any(near & (i_in_j | j_in_i), axis=-1)
+
+
+def yielding_side(priority, x, y, heading):
+    """``respect_priorities(v_i, v_j)`` for every pair: True where ``v_i`` yields to ``v_j`` (``[V, V]``)."""
+    pi, pj = priority[:, None], priority[None, :]
+    c, s = jnp.cos(heading), jnp.sin(heading)
+    dx, dy = x[None, :] - x[:, None], y[None, :] - y[:, None]
+    front_ij = c[:, None] * dx + s[:, None] * dy  # v_i.front_distance_to(v_j)
+    front_ji = -(c[None, :] * dx + s[None, :] * dy)  # v_j.front_distance_to(v_i)
+    return jnp.where(pi != pj, pi < pj, front_ij > front_ji)
+
+
+def enforce_road_rules(road: Road, st: TrafficState, yielding, yield_timer, priority, is_idm, order=None):
+    """One ``enforce_road_rules``: ``(target_speed, yielding, yield_timer)`` after releases and new yields.
+
+    ``priority``: static ``[lanes]`` lane priorities; ``is_idm``: static ``[V]`` flags of the slots
+    that can be made to yield; ``order``: ``[V]`` positions in ``road.vehicles`` (default: slot order),
+    which decide the pair's ``v1`` and so the vehicle that yields on an exact front-distance tie
+    (vehicles face to face on one axis-aligned line).
+    """
+    speed_limit = road.lanes.col("speed_limit")[st.lane]
+    release = st.alive & yielding & (yield_timer >= YIELD_DURATION * REGULATION_FREQUENCY)
+    target_speed = jnp.where(release, speed_limit, st.target_speed)
+    yield_timer = jnp.where(st.alive & yielding & ~release, yield_timer + 1, yield_timer)
+    yielding = yielding & ~release
+
+    times = jnp.asarray(PREDICTION_TIMES, st.x.dtype)
+    px, py, ph = predict_along_route(road, st, times)
+    n = st.x.shape[0]
+    if order is None:
+        upper = jnp.asarray(np.triu(np.ones((n, n), bool), 1))
+    else:
+        upper = order[:, None] < order[None, :]
+    pair = upper & st.alive[:, None] & st.alive[None, :] & conflicts(px, py, ph)
+    prio = jnp.asarray(priority)[st.lane]
+    i_yields = yielding_side(prio, st.x, st.y, st.heading)
+    stops = jnp.any(pair & i_yields, axis=1) | jnp.any(pair & ~i_yields, axis=0)
+    stops = stops & jnp.asarray(is_idm)
+    target_speed = jnp.where(stops, 0.0, target_speed).astype(st.x.dtype)
+    yielding = yielding | stops
+    yield_timer = jnp.where(stops, 0, yield_timer)
+    return target_speed, yielding, yield_timer
