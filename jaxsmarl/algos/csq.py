@@ -15,6 +15,13 @@ elementwise, so this equals one optimizer per critic as the authors had).
 * Loss: ``sum_i mean_B (Q_i(s, a) - y_i)^2 + (G_i(s, a) - g_i)^2``; soft target update
   ``theta' <- (1 - tau) theta' + tau theta`` every ``target_update_every`` updates (authors: tau 0.01 / 10).
 
+Hierarchies (``hierarchy``, :mod:`jaxsmarl.hierarchy`; the paper's multi-agent expansion): K agents with critics
+over the joint-action grid ``A^K``; the equilibrium of any hierarchy (levels solved by backward induction, the agents
+on one level at the pure equilibrium of :func:`jaxsmarl.stackelberg.stackelberg_equilibrium`). Acting goes level by
+level: each agent of a level explores with probability ``eps_i``, otherwise plays its part of the equilibrium of the
+sub-game of its own and the later levels, given the actions executed on the levels above it. ``None`` is the chain
+``0 | 1 | ... | K-1``: for two agents the leader-follower game above.
+
 Options reproducing the authors' code (docs/algorithms.md, CSQ): ``leader_rule="authors"``, ``infeasible="argmax"``,
 ``td_action_state="current"`` + ``td_action_noise=True`` (their target actions come from s with exploration),
 ``bootstrap_on_truncation=False`` (their t_i includes the time limit), ``terminal_mask="batch_mean"`` (their
@@ -32,6 +39,7 @@ import jax.numpy as jnp
 import optax
 
 from jaxsmarl import bootstrap, networks
+from jaxsmarl.hierarchy import agent_order, is_chain, validate_hierarchy
 from jaxsmarl.stackelberg import stackelberg_equilibrium
 
 __all__ = ["CSQConfig", "CSQState", "CSQAgent"]
@@ -64,11 +72,27 @@ class CSQConfig:
     td_equilibrium_net: str = "online"  # critics used to solve p14 for the targets: "online" (p14) or "target"
     bootstrap_on_truncation: bool = True  # False: the time limit also stops bootstrapping (authors)
     terminal_mask: str = "sample"  # or "batch_mean": the authors' effective rule (jaxsmarl.bootstrap)
+    hierarchy: Any = None  # levels of agent indices or "0|1|2" (jaxsmarl.hierarchy); None: the chain 0|1|...|K-1
 
     def __post_init__(self):
         if self.terminal_mask not in bootstrap.TERMINAL_MASKS:
             raise ValueError(f"terminal_mask must be one of {', '.join(bootstrap.TERMINAL_MASKS)}, "
                              f"got {self.terminal_mask!r}")
+        n = len(self.num_actions)
+        for name in ("cost_threshold", "eps_start", "eps_min"):
+            if len(getattr(self, name)) != n:
+                raise ValueError(f"{name} has {len(getattr(self, name))} entries but there are {n} agents "
+                                 f"(num_actions {self.num_actions}); give one per agent")
+        if self.hierarchy is not None:
+            object.__setattr__(self, "hierarchy", validate_hierarchy(self.hierarchy, n))
+            if self.leader_rule == "authors" and not is_chain(self.hierarchy):
+                raise ValueError(f"leader_rule='authors' is defined for a chain of single agents; hierarchy "
+                                 f"{self.hierarchy} has a level of several agents: use leader_rule='stackelberg'")
+
+    @property
+    def levels(self) -> tuple[tuple[int, ...], ...]:
+        """The hierarchy as levels of agent indices (the chain 0|1|...|K-1 when none is given)."""
+        return tuple((i,) for i in range(self.n_agents)) if self.hierarchy is None else self.hierarchy
 
     @property
     def n_agents(self) -> int:
@@ -141,22 +165,28 @@ class CSQAgent:
         return networks.joint_values(params, obs, self.config.num_actions)
 
     def _solve(self, values: jax.Array, level: int = 0) -> jax.Array:
-        """p14 for the sub-game of agents ``level..n-1``.
+        """The equilibrium of the sub-game of levels ``level..`` of the hierarchy.
 
-        ``values`` ``[..., n, 2, A_level, ..., A_n]`` -> int32 ``[..., n - level]``."""
+        ``values`` ``[..., n, 2, A_j...]`` over the action axes of the agents ``j`` of levels ``level..`` in index
+        order (the actions of the levels above already fixed) -> int32 ``[..., m]``, the same agents' actions in
+        index order."""
         c = self.config
-        n = c.n_agents
-        ax = values.ndim - 2 - (n - level)  # the agent axis
+        levels = c.levels[level:]
+        agents = sorted(agent_order(levels))  # the remaining agents, in index (= axis) order
+        ax = values.ndim - 2 - len(agents)  # the agent axis
         pick = lambda i, kind: values[(slice(None),) * ax + (i, kind)]
+        position = {a: j for j, a in enumerate(agents)}
+        sub = None if c.hierarchy is None else tuple(tuple(position[a] for a in lv) for lv in levels)
         return stackelberg_equilibrium(
-            [pick(i, Q) for i in range(level, n)],
-            [pick(i, G) for i in range(level, n)],
-            list(c.cost_threshold[level:]),
-            infeasible=c.infeasible, leader_rule=c.leader_rule, tie_break=c.resolved_tie_break,
+            [pick(i, Q) for i in agents],
+            [pick(i, G) for i in agents],
+            [c.cost_threshold[i] for i in agents],
+            infeasible=c.infeasible, leader_rule=c.leader_rule, tie_break=c.resolved_tie_break, hierarchy=sub,
         )
 
     def equilibrium(self, values: jax.Array) -> jax.Array:
-        """Greedy joint action (p14) from ``values`` ``[..., n, 2, A1..An]`` -> int32 ``[..., n]``."""
+        """Greedy joint action from ``values`` ``[..., n, 2, A1..An]`` -> int32 ``[..., n]`` (p14 for two agents;
+        the hierarchy's equilibrium for K)."""
         return self._solve(values, 0)
 
     def solve_equilibrium(self, params, obs: jax.Array) -> jax.Array:
@@ -165,7 +195,7 @@ class CSQAgent:
         40% fewer critic rows than :meth:`equilibrium` of :meth:`values` and gives the same actions (up to
         float rounding of exact ties). Other rules fall back to the full grid."""
         c = self.config
-        if c.leader_rule != "stackelberg" or c.n_agents != 2:
+        if c.leader_rule != "stackelberg" or c.n_agents != 2 or c.levels != ((0,), (1,)):
             return self.equilibrium(self.values(params, obs))
         rule = dict(infeasible=c.infeasible, leader_rule="stackelberg", tie_break=c.resolved_tie_break)
         a1_n = c.num_actions[0]
@@ -182,25 +212,29 @@ class CSQAgent:
         return jnp.stack([a1, a2], axis=-1)
 
     def policy(self, values: jax.Array, key: jax.Array, eps: jax.Array) -> jax.Array:
-        """Epsilon-greedy Stackelberg acting: each level explores with prob. ``eps[i]``, else best-responds
-        (p14 on its sub-game) to the actions executed above it. ``eps = 0`` gives :meth:`equilibrium`."""
+        """Epsilon-greedy hierarchical acting: level by level, each agent explores with prob. ``eps[i]``, else
+        plays its part of the equilibrium of the sub-game of its and the later levels, given the actions executed
+        on the levels above. ``eps = 0`` gives :meth:`equilibrium`."""
         c = self.config
         n = c.n_agents
         batch = values.shape[: values.ndim - 2 - n]
         keys = jax.random.split(key, 2 * n)
-        sub = values  # [..., n, 2, A_level..A_n]: restricted to the actions executed above `level`
-        actions = []
-        for level in range(n):
-            greedy = self._solve(sub, level)[..., 0]
-            explore = jax.random.uniform(keys[2 * level], batch) < eps[level]
-            rand = jax.random.randint(keys[2 * level + 1], batch, 0, c.num_actions[level])
-            a = jnp.where(explore, rand, greedy).astype(jnp.int32)
-            actions.append(a)
-            if level + 1 < n:  # fix this level's executed action in every agent's tensors
-                axis = len(batch) + 2
-                shape = sub.shape[:axis] + (1,) + sub.shape[axis + 1 :]
-                idx = jnp.broadcast_to(a.reshape(batch + (1,) * (sub.ndim - len(batch))), shape)
-                sub = jnp.take_along_axis(sub, idx, axis=axis).squeeze(axis)
+        sub = values  # [..., n, 2, A_j...]: the axes of the agents not yet executed, in index order
+        remaining = list(range(n))
+        actions = [None] * n
+        for li, level in enumerate(c.levels):
+            greedy = self._solve(sub, li)  # [..., len(remaining)], remaining agents in index order
+            for i in level:
+                explore = jax.random.uniform(keys[2 * i], batch) < eps[i]
+                rand = jax.random.randint(keys[2 * i + 1], batch, 0, c.num_actions[i])
+                actions[i] = jnp.where(explore, rand, greedy[..., remaining.index(i)]).astype(jnp.int32)
+            if li + 1 < len(c.levels):  # fix this level's executed actions in every agent's tensors
+                for i in sorted(level, reverse=True):
+                    axis = len(batch) + 2 + remaining.index(i)
+                    shape = sub.shape[:axis] + (1,) + sub.shape[axis + 1 :]
+                    idx = jnp.broadcast_to(actions[i].reshape(batch + (1,) * (sub.ndim - len(batch))), shape)
+                    sub = jnp.take_along_axis(sub, idx, axis=axis).squeeze(axis)
+                    remaining.remove(i)
         return jnp.stack(actions, axis=-1)
 
     def act(self, state: CSQState, obs: jax.Array, key: jax.Array, eps: jax.Array) -> jax.Array:
