@@ -77,6 +77,17 @@ def test_lower_levels_respond_to_the_executed_actions_above():
         assert tuple(a[b, :2]) == want
 
 
+@pytest.mark.parametrize("k, hierarchy, infeasible", [(3, "2|0|1", "min_cost"), (4, "3|1|0|2", "argmax")])
+def test_chain_targets_evaluate_only_what_backward_induction_needs(k, hierarchy, infeasible):
+    """The target equilibrium of a chain from the critic rows backward induction needs == the full grid's."""
+    agent = _agent(k, hierarchy, infeasible=infeasible)
+    state = _critics(k, 8, 0)[0] if k == 3 else jax.jit(agent.init)(jax.random.PRNGKey(0))
+    obs = 2.0 * jax.random.normal(jax.random.PRNGKey(7), (200, k, D))
+    fast = jax.jit(agent.solve_equilibrium)(state.params, obs)
+    full = jax.jit(lambda p, o: agent.equilibrium(agent.values(p, o)))(state.params, obs)
+    np.testing.assert_array_equal(fast, full)
+
+
 def test_td_targets_bootstrap_at_the_hierarchy_equilibrium():
     """y_i = (r_i, c_i) + gamma (1 - t_i) (Q_i, G_i)^targ(s', a'), a' the equilibrium of the online critics at s'."""
     agent, state, _, _ = _setup(3, "0,1|2")
