@@ -37,20 +37,24 @@ ID_FIELDS = ("seed", "episode", "env", "end_step")
 
 
 def episode_record(info: Mapping[str, Any]) -> dict:
-    """Fixed-shape per-step record from the auto-reset wrapper's ``info`` (valid where ``returned``)."""
+    """Fixed-shape per-step record from the auto-reset wrapper's ``info`` (valid where ``returned``).
+
+    With K > 2 agents (per-agent statistics ``[..., K]``) the ``leader_*`` columns are agent 0's and the
+    ``follower_*`` columns the sum over agents 1..K-1 (``*_arrived``: any of them); ``total_return`` sums all."""
     ret = jnp.asarray(info["episode_return"], jnp.float32)
     cost = jnp.asarray(info["episode_cost"], jnp.float32)
     arrived = jnp.asarray(info["episode_arrived"], jnp.float32)
+    dist = jnp.asarray(info["episode_distance"], jnp.float32)
+    others = lambda x: jnp.sum(x[..., 1:], axis=-1)
     return {
         "returned": jnp.asarray(info["returned_episode"], bool),
-        "leader_return": ret[..., 0], "follower_return": ret[..., 1], "total_return": ret[..., 0] + ret[..., 1],
-        "leader_cost": cost[..., 0], "follower_cost": cost[..., 1],
+        "leader_return": ret[..., 0], "follower_return": others(ret), "total_return": ret[..., 0] + others(ret),
+        "leader_cost": cost[..., 0], "follower_cost": others(cost),
         "crash": jnp.asarray(info["episode_crash"], jnp.float32),
-        "leader_arrived": arrived[..., 0], "follower_arrived": arrived[..., 1],
+        "leader_arrived": arrived[..., 0], "follower_arrived": jnp.max(arrived[..., 1:], axis=-1),
         "length": jnp.asarray(info["episode_length"], jnp.float32),
         "offroad": jnp.asarray(info["episode_offroad"], jnp.float32),
-        "leader_distance": jnp.asarray(info["episode_distance"], jnp.float32)[..., 0],
-        "follower_distance": jnp.asarray(info["episode_distance"], jnp.float32)[..., 1],
+        "leader_distance": dist[..., 0], "follower_distance": others(dist),
     }
 
 

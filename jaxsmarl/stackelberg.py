@@ -31,6 +31,16 @@ Rules fixed here (the paper leaves them open):
   jointly feasible completion under its own Q/G. Its default tie rule is "last" in the authors' loop order
   (a1 outer, ..., ak inner), which is what their ``>=`` comparisons do.
 
+Hierarchies (``hierarchy=``, :mod:`jaxsmarl.hierarchy`; the paper's multi-agent expansion): the levels are solved
+by backward induction as above, last level first; each level responds to every joint action of the levels above
+it. A level with one agent is the constrained argmax above. A level with several agents plays a pure-strategy
+equilibrium among themselves, found by enumerating the level's joint actions (exact, no iteration): a profile is
+an equilibrium when every agent's action is its own constrained best response (the rule above: feasible set,
+``infeasible`` fallback, index ties) to the others' actions. The level's joint action is the first profile in the
+order: fewest agents not best-responding (0 = an equilibrium) > most agents within their cost limit > highest sum
+of the level's Q values > the index rule over the level's joint actions in row-major order (agents in increasing
+index). When the level has no pure equilibrium this same order is the fallback: the profile closest to one.
+
 NaN values give a valid index but an otherwise unspecified choice.
 """
 
@@ -45,6 +55,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from jax import lax
+
+from jaxsmarl.hierarchy import agent_order, is_chain, validate_hierarchy
 
 __all__ = ["stackelberg_equilibrium", "stackelberg_values"]
 
@@ -119,22 +131,83 @@ def _take_last(x: jax.Array, idx: jax.Array) -> jax.Array:
 # ----------------------------------------------------------------------------------------------------
 
 
-def _stackelberg(qs, gs, ds, infeasible: str, last: bool) -> jax.Array:
-    """Backward induction over the levels (p14, generalised to k levels)."""
+def _argbest(keys: Sequence[jax.Array], last: bool) -> jax.Array:
+    """Index along the last axis of the lexicographic best of ``keys`` (each: higher wins), then the index rule.
+    One variadic ``lax.reduce``, exact for any values; int32, the last axis reduced."""
+    axis = keys[0].ndim - 1
+    n = keys[0].shape[axis]
+    idx = lax.broadcasted_iota(jnp.int32, keys[0].shape, axis)
+
+    def pick(a, b):
+        win, tie = jnp.zeros(a[0].shape, bool), jnp.ones(a[0].shape, bool)
+        for x, y in zip(a[:-1], b[:-1]):
+            win = win | (tie & (x > y))
+            tie = tie & ~((x > y) | (y > x))
+        win = win | (tie & ((a[-1] > b[-1]) if last else (a[-1] < b[-1])))
+        return tuple(lax.select(win, x, y) for x, y in zip(a, b))
+
+    init = tuple(_lowest(k.dtype) for k in keys) + (jnp.array(-1 if last else n, jnp.int32),)
+    return lax.reduce(tuple(keys) + (idx,), init, pick, (axis,))[-1]
+
+
+def _level_equilibrium(qs, gs, ds, n_action_axes: int, infeasible: str, last: bool) -> jax.Array:
+    """Joint action of the ``s`` agents of one level (module docstring): tensors ``[..., P..., A_1..A_s]``
+    (``P``: the actions of the levels above; ``n_action_axes`` = len(P) + s) -> int32 flat index over
+    ``A_1..A_s`` (row-major), shape ``[..., P...]``."""
+    s = len(qs)
+    shape = qs[0].shape
+    lead = len(shape) - s
+    not_best = jnp.zeros(shape, jnp.int32)
+    feasible = jnp.zeros(shape, jnp.int32)
+    welfare = jnp.zeros(shape, qs[0].dtype)
+    for i in range(s):
+        axis = lead + i
+        d = jnp.reshape(ds[i], jnp.shape(ds[i]) + (1,) * n_action_axes)
+        br = _select(jnp.moveaxis(qs[i], axis, -1), jnp.moveaxis(gs[i], axis, -1), d, infeasible, last)
+        best = jnp.expand_dims(br, axis) == lax.broadcasted_iota(jnp.int32, shape, axis)
+        not_best = not_best + (~best).astype(jnp.int32)
+        feasible = feasible + (gs[i] <= d).astype(jnp.int32)
+        welfare = welfare + qs[i]
+    flat = lambda x: jnp.reshape(x, shape[:lead] + (-1,))
+    return _argbest([flat(-not_best), flat(feasible), flat(welfare)], last)
+
+
+def _hierarchical(qs, gs, ds, levels, infeasible: str, last: bool) -> jax.Array:
+    """Backward induction over the levels of ``levels`` (p14, generalised to any hierarchy; module docstring)."""
     k = len(qs)
+    order = agent_order(levels)
+    n_batch = qs[0].ndim - k
+    if order != tuple(range(k)):  # action axes (and agents) in decision order
+        perm = tuple(range(n_batch)) + tuple(n_batch + a for a in order)
+        qs = [jnp.transpose(qs[a], perm) for a in order]
+        gs = [jnp.transpose(gs[a], perm) for a in order]
+        ds = [ds[a] for a in order]
     qs, gs = list(qs), list(gs)
-    plan = None  # [..., A1..A_m, k-m]: the continuation (a_{m+1}..a_k) for every prefix (a1..a_m)
-    for m in range(k - 1, -1, -1):  # static loop over the levels, last agent first
-        d = jnp.reshape(ds[m], jnp.shape(ds[m]) + (1,) * (m + 1))
-        choice = _select(qs[m], gs[m], d, infeasible, last)  # [..., A1..A_{m}] (agent m+1's reply)
-        for j in range(m):  # leaders above see the values at this reply
-            qs[j] = _take_last(qs[j], choice)
-            gs[j] = _take_last(gs[j], choice)
-        if plan is None:
-            plan = choice[..., None]
+    action_shape = qs[0].shape[n_batch:]
+    plan = None  # [..., A_0..A_{p-1}, k-p]: the continuation (positions p..k-1) for every prefix
+    end = k
+    for level in reversed(levels):  # static loop over the levels, last level first
+        p = end - len(level)
+        if len(level) == 1:
+            d = jnp.reshape(ds[p], jnp.shape(ds[p]) + (1,) * (p + 1))
+            choice = _select(qs[p], gs[p], d, infeasible, last)  # [..., A_0..A_{p-1}]: the level's reply
+            acts = choice[..., None]
         else:
-            rest = jnp.take_along_axis(plan, choice[..., None, None], axis=-2)[..., 0, :]
-            plan = jnp.concatenate([choice[..., None], rest], axis=-1)
+            choice = _level_equilibrium(qs[p:end], gs[p:end], ds[p:end], end, infeasible, last)
+            acts = jnp.stack(jnp.unravel_index(choice, action_shape[p:end]), axis=-1).astype(jnp.int32)
+        n_level = math.prod(action_shape[p:end])
+        for j in range(p):  # the levels above see the values at this reply
+            qs[j] = _take_last(jnp.reshape(qs[j], qs[j].shape[: n_batch + p] + (n_level,)), choice)
+            gs[j] = _take_last(jnp.reshape(gs[j], gs[j].shape[: n_batch + p] + (n_level,)), choice)
+        if plan is None:
+            plan = acts
+        else:
+            flat_plan = jnp.reshape(plan, plan.shape[: n_batch + p] + (n_level, plan.shape[-1]))
+            rest = jnp.take_along_axis(flat_plan, choice[..., None, None], axis=-2)[..., 0, :]
+            plan = jnp.concatenate([acts, rest], axis=-1)
+        end = p
+    if order != tuple(range(k)):  # back to agent order
+        plan = plan[..., tuple(order.index(a) for a in range(k))]
     return plan
 
 
@@ -163,11 +236,24 @@ def _authors(qs, gs, ds, infeasible: str, last: bool) -> jax.Array:
     return jnp.stack(actions, axis=-1)
 
 
-@partial(jax.jit, static_argnames=("infeasible", "leader_rule", "last"))
-def _solve(qs, gs, ds, *, infeasible: str, leader_rule: str, last: bool) -> jax.Array:
-    if leader_rule == "authors":
+def _authors_chain(qs, gs, ds, levels, infeasible: str, last: bool) -> jax.Array:
+    """The authors' rule along a chain in any agent order: solved in decision order, returned in agent order."""
+    k = len(qs)
+    order = agent_order(levels)
+    if order == tuple(range(k)):
         return _authors(qs, gs, ds, infeasible, last)
-    return _stackelberg(qs, gs, ds, infeasible, last)
+    n_batch = qs[0].ndim - k
+    perm = tuple(range(n_batch)) + tuple(n_batch + a for a in order)
+    plan = _authors([jnp.transpose(qs[a], perm) for a in order], [jnp.transpose(gs[a], perm) for a in order],
+                    [ds[a] for a in order], infeasible, last)
+    return plan[..., tuple(order.index(a) for a in range(k))]
+
+
+@partial(jax.jit, static_argnames=("levels", "infeasible", "leader_rule", "last"))
+def _solve(qs, gs, ds, *, levels, infeasible: str, leader_rule: str, last: bool) -> jax.Array:
+    if leader_rule == "authors":
+        return _authors_chain(qs, gs, ds, levels, infeasible, last)
+    return _hierarchical(qs, gs, ds, levels, infeasible, last)
 
 
 # ----------------------------------------------------------------------------------------------------
@@ -194,6 +280,7 @@ def stackelberg_equilibrium(
     infeasible: str = "min_cost",
     leader_rule: str = "stackelberg",
     tie_break: str | None = None,
+    hierarchy: Any = None,
 ) -> jax.Array:
     """Pure-strategy constrained Stackelberg equilibrium for a batch of states (paper eq. p14, Alg. 1).
 
@@ -208,13 +295,17 @@ def stackelberg_equilibrium(
         see the module docstring).
       tie_break: ``"first"`` (lowest index among equal maxima) or ``"last"`` (highest). ``None`` means
         ``"first"`` for ``"stackelberg"`` and ``"last"`` for ``"authors"`` (their ``>=`` loops).
+      hierarchy: who decides before whom, as levels of agent indices (:mod:`jaxsmarl.hierarchy`), e.g.
+        ``((0,), (1,), (2,))`` or ``"0,1|2"``; ``None`` is the chain ``0 | 1 | ... | k-1`` (agent 0 leads).
+        Value tensors stay in agent-index order whatever the hierarchy. ``"authors"`` needs a chain.
 
     Returns:
       int32 ``[..., k]``: the equilibrium action of each agent. Jit- and vmap-compatible.
 
     Raises:
       ValueError: wrong number of cost tensors/thresholds, mismatched shapes, thresholds that do not
-        broadcast to the batch shape, or an unknown ``infeasible``/``leader_rule``/``tie_break``.
+        broadcast to the batch shape, an unknown ``infeasible``/``leader_rule``/``tie_break``, an invalid
+        hierarchy, or ``"authors"`` with a level of several agents.
     """
     _check_choice("infeasible", infeasible, INFEASIBLE_RULES)
     _check_choice("leader_rule", leader_rule, LEADER_RULES)
@@ -254,12 +345,17 @@ def stackelberg_equilibrium(
             raise ValueError(
                 f"thresholds[{i}] has shape {d_shape}, which does not broadcast to the batch shape {batch_shape}"
             )
+    levels = tuple((i,) for i in range(k)) if hierarchy is None else validate_hierarchy(hierarchy, k)
+    if leader_rule == "authors" and not is_chain(levels):
+        raise ValueError(f"leader_rule='authors' is defined for a chain of single agents (e.g. '0|1|2'); the "
+                         f"hierarchy {hierarchy!r} has a level of several agents: use leader_rule='stackelberg'")
     if tie_break is None:
         tie_break = "last" if leader_rule == "authors" else "first"
     return _solve(
         tuple(jnp.asarray(q) for q in qs),
         tuple(jnp.asarray(g) for g in gs),
         tuple(jnp.asarray(d) for d in ds),
+        levels=levels,
         infeasible=infeasible,
         leader_rule=leader_rule,
         last=tie_break == "last",

@@ -56,3 +56,11 @@ def test_missing_files_are_not_listed(tmp_path):
     text = next_steps(str(out), {"scenario": "merge", "total_steps": 100})
     assert "config.json" in text and "episodes.csv" not in text and "checkpoints" not in text
     assert os.path.exists(out / "config.json")
+
+
+def test_k_agent_highway_run_is_offered_only_what_supports_it(tmp_path):
+    """No renderer and no study for the K-agent traffic task yet: evaluation and resumption only."""
+    out = _run_folder(tmp_path, "hw")
+    cmds = _commands(next_steps(out, {"scenario": "highway", "total_steps": 20000, "buffer_size": 500000}))
+    assert [c[:3] for c in cmds] == [["python", "-m", "train"]] * 2
+    assert cli.parse_args(cmds[0][3:]).eval_only == out and cli.parse_args(cmds[1][3:]).resume

@@ -43,8 +43,8 @@ def test_invalid_values_raise_with_fix(overrides, match):
 def test_continuous_scenario_with_discrete_algorithm():
     with pytest.raises(ValueError, match="continuous actions.*--scenario merge"):
         load_config("intersection", "csq")
-    with pytest.raises(ValueError, match="unknown scenario 'highway'"):
-        load_config("highway", "csq")
+    with pytest.raises(ValueError, match="unknown scenario 'motorway'"):
+        load_config("motorway", "csq")
     with pytest.raises(ValueError, match="unknown algorithm 'dqn'"):
         load_config("merge", "dqn")
 

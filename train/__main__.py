@@ -54,6 +54,7 @@ examples:
   python -m train --eval-only runs/m --eval-episodes 20  # greedy evaluation of a saved run
   python -m train --set leader_rule=authors --set infeasible=argmax   # the authors' action rule
   python -m train --scenario racetrack --algo cs-maddpg --preset authors   # every coded option of theirs
+  python -m train --scenario highway --agents 3 --hierarchy "0|1,2"   # CSQ, one leader, two followers
 
 configuration: defaults <- train/configs/<scenario>_<algo>.json <- --config FILE <- --preset <- options and --set.
 presets (the authors' coded options, docs/algorithms.md):
@@ -68,9 +69,16 @@ def parse_args(argv=None) -> argparse.Namespace:
     p = argparse.ArgumentParser(prog="python -m train", description=__doc__.split("\n\n")[1],
                                 formatter_class=argparse.RawDescriptionHelpFormatter, epilog=EPILOG)
     p.add_argument("--scenario", choices=list(SCENARIOS), default=None,
-                   help="driving scenario (default merge): merge and roundabout have discrete actions, intersection "
-                        "and racetrack continuous ones; the algorithm must match")
+                   help="driving scenario (default merge): merge, roundabout and highway (highway-v0 with K "
+                        "controlled vehicles) have discrete actions, intersection and racetrack continuous ones; the "
+                        "algorithm must match")
     p.add_argument("--algo", choices=list(ALGOS), default=None, help=_algos_help() + " (default csq)")
+    p.add_argument("--agents", type=int, default=None, metavar="K",
+                   help="controlled agents (default: the scenario's, 2; --scenario highway takes 2..8, CSQ up to 4)")
+    p.add_argument("--hierarchy", default=None, metavar="LEVELS",
+                   help="who decides before whom (CSQ, SQ): levels of agent indices, '|' between levels and ',' "
+                        "within one, e.g. '0|1|2' (vertical chain, the default), '0,1|2' (two leaders), '0,1,2' "
+                        "(no hierarchy)")
     p.add_argument("--seeds", type=int, default=None, help="number of seeds trained in parallel (default 8)")
     p.add_argument("--seed", type=int, default=None, help="base random seed (default 0)")
     p.add_argument("--steps", type=int, default=None,
@@ -118,7 +126,7 @@ def build_config(args: argparse.Namespace) -> dict:
     overrides = _parse_set(args.set)
     for opt, key in (("seeds", "num_seeds"), ("seed", "seed"), ("steps", "total_steps"), ("num_envs", "num_envs"),
                      ("chunk_steps", "chunk_steps"), ("checkpoint_every", "checkpoint_every"),
-                     ("eval_episodes", "eval_episodes")):
+                     ("eval_episodes", "eval_episodes"), ("agents", "agents"), ("hierarchy", "hierarchy")):
         v = getattr(args, opt)
         if v is not None:
             overrides[key] = v

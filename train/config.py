@@ -20,7 +20,7 @@ import math
 import os
 from typing import Any, Callable
 
-__all__ = ["COMMON", "COMMON_HELP", "AlgoSpec", "ALGOS", "SCENARIOS", "CONFIG_DIR", "DEFAULTS", "HELP",
+__all__ = ["COMMON", "COMMON_HELP", "AlgoSpec", "ALGOS", "SCENARIOS", "SCENARIO_AGENTS", "CONFIG_DIR", "DEFAULTS", "HELP",
            "register", "spec", "defaults_for", "help_for", "load_config", "read_run_config", "validate", "config_path",
            "preset_values", "LEGACY", "MATMUL_PRECISIONS", "TERMINAL_MASKS",
            "Int", "Num", "Choice", "Bool", "PerAgent", "Sizes"]
@@ -32,11 +32,17 @@ CONFIG_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), "configs")
 TERMINAL_MASKS = ("sample", "batch_mean")
 
 # Known scenarios and their action type (checked again against the env when it is built).
-SCENARIOS = {"merge": "discrete", "roundabout": "discrete", "intersection": "continuous", "racetrack": "continuous"}
+SCENARIOS = {"merge": "discrete", "roundabout": "discrete", "intersection": "continuous", "racetrack": "continuous",
+             "highway": "discrete"}
+# Controlled agents per scenario: (default, lowest, highest) for the common key `agents`. `highway` is
+# highway-env's highway-v0 with `agents` controlled vehicles (envs_jax.make("highway-v0", controlled_vehicles=K)).
+SCENARIO_AGENTS = {"merge": (2, 2, 2), "roundabout": (2, 2, 2), "intersection": (2, 2, 2), "racetrack": (2, 2, 2),
+                   "highway": (2, 2, 8)}
 
 COMMON: dict[str, Any] = {
     "scenario": "merge",
     "algo": "csq",
+    "agents": None,
     "total_steps": 20000,
     "num_seeds": 8,
     "seed": 0,
@@ -50,12 +56,15 @@ COMMON: dict[str, Any] = {
 
 # The value a key had before it existed, for run folders saved without it (read_run_config): the behaviour those
 # runs were trained with. Keys not listed here kept their behaviour under today's default.
-LEGACY: dict[str, Any] = {"matmul_precision": "default"}
+LEGACY: dict[str, Any] = {"matmul_precision": "default", "agents": 2}
 
 MATMUL_PRECISIONS = ("highest", "high", "default")
 
 COMMON_HELP: dict[str, str] = {
-    "scenario": "driving scenario: merge | roundabout (discrete actions); intersection | racetrack (continuous)",
+    "scenario": "driving scenario: merge | roundabout | highway (discrete actions); intersection | racetrack "
+                "(continuous)",
+    "agents": "controlled agents K (null: the scenario's default; merge, roundabout, intersection, racetrack: 2; "
+              "highway: 2, up to 8)",
     "algo": "training algorithm (see --help for the list)",
     "total_steps": "environment steps per seed, over all its parallel envs (defaults: the authors' budgets)",
     "num_seeds": "independent training runs, vmapped in one program",
@@ -125,16 +134,21 @@ class Bool:
 
 @dataclasses.dataclass(frozen=True)
 class PerAgent:
-    """A number per agent ``[leader, follower]``; a single number sets both."""
+    """A number per agent (``[leader, follower]`` for two); a single number, or a list of equal numbers such as the
+    two-agent defaults, sets every agent's. ``n``: the number of agents (the config's ``agents``)."""
 
     num: Num = Num()
 
-    def __call__(self, key: str, v: Any) -> list[float]:
+    def __call__(self, key: str, v: Any, n: int = 2) -> list[float]:
         if isinstance(v, (int, float)) and not isinstance(v, bool):
-            v = [v, v]
-        if not isinstance(v, (list, tuple)) or len(v) != 2 or not all(
-                isinstance(x, (int, float)) and not isinstance(x, bool) for x in v):
-            raise ValueError(f"'{key}' must be a number or a list of two numbers [leader, follower], got {v!r}")
+            v = [v] * n
+        numbers = isinstance(v, (list, tuple)) and len(v) > 0 and all(
+            isinstance(x, (int, float)) and not isinstance(x, bool) for x in v)
+        if numbers and len(v) != n and all(x == v[0] for x in v):
+            v = [v[0]] * n
+        if not numbers or len(v) != n:
+            what = "two numbers [leader, follower]" if n == 2 else f"{n} numbers, one per agent"
+            raise ValueError(f"'{key}' must be a number or a list of {what}, got {v!r}")
         return [self.num.check(key, x) for x in v]
 
 
@@ -337,6 +351,21 @@ def _check_action_type(scenario: str, algo: str) -> None:
             f"actions; use {algo} with {' or '.join('--scenario ' + x for x in scen)}, or train {scenario} with {', '.join(fits) or 'an algorithm for ' + SCENARIOS[scenario] + ' actions (none registered)'}")
 
 
+def _agents(scenario: str, value: Any) -> int:
+    """The number of controlled agents: ``value`` checked against the scenario's range (None: its default)."""
+    default, lo, hi = SCENARIO_AGENTS[scenario]
+    if value is None:
+        return default
+    if isinstance(value, float) and value.is_integer():
+        value = int(value)
+    if not isinstance(value, int) or isinstance(value, bool) or not lo <= value <= hi:
+        allowed = str(lo) if lo == hi else f"{lo}..{hi}"
+        more = [n for n, (_, a, b) in SCENARIO_AGENTS.items() if b > 2]
+        hint = f"; K agents: --scenario {' or '.join(more)}" if lo == hi else ""
+        raise ValueError(f"'agents' for scenario '{scenario}' must be {allowed}, got {value!r}{hint}")
+    return value
+
+
 def validate(cfg: dict) -> dict:
     """Check keys, types and ranges; normalise per-agent values. Returns a new dict."""
     cfg = dict(cfg)
@@ -351,8 +380,9 @@ def validate(cfg: dict) -> dict:
     for k, v in valid.items():
         cfg.setdefault(k, v)
     _check_action_type(cfg["scenario"], algo)
+    cfg["agents"] = n_agents = _agents(cfg["scenario"], cfg["agents"])
     for k, rule in {**COMMON_RULES, **s.rules}.items():
-        cfg[k] = rule(k, cfg[k])
+        cfg[k] = rule(k, cfg[k], n_agents) if isinstance(rule, PerAgent) else rule(k, cfg[k])
 
     n = cfg["num_envs"]
     for k in ("total_steps", "chunk_steps"):

@@ -71,10 +71,16 @@ class Trainer(NamedTuple):
     seeds_in_sequence: bool = False
 
 
-def make_env(scenario: str):
-    """``(env, auto-reset env, params)`` from :mod:`envs_jax`."""
+def make_env(scenario: str, agents: int | None = None):
+    """``(env, auto-reset env, params)`` from :mod:`envs_jax`. ``highway`` is highway-v0 with ``agents``
+    controlled vehicles (default 2), its observations flattened per agent (:mod:`envs_jax.traffic_autoreset`)."""
     import envs_jax
 
+    if scenario == "highway":
+        from envs_jax.traffic_autoreset import TrafficAutoResetWrapper
+
+        env = envs_jax.make("highway-v0", controlled_vehicles=2 if agents is None else int(agents))
+        return env, TrafficAutoResetWrapper(env), env.default_params
     env = envs_jax.make(scenario)
     return env, envs_jax.AutoResetWrapper(env), env.default_params
 

@@ -52,6 +52,8 @@ def next_steps(out: str, config: dict) -> str:
             resume,
             (f"python -m train.experiments --only {config['scenario']}",
              "every algorithm on this scenario: runs, figures, RESULTS.md")]
+    if config["scenario"] == "highway":  # the K-agent traffic task has no renderer and no study yet
+        cmds = cmds[1:3]
     width = max(len(c) for c, _ in cmds)
     lines.append("next:")
     lines += [f"  {c:<{width}}  # {why}" for c, why in cmds]

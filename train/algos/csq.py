@@ -33,6 +33,7 @@ DEFAULTS = {
     "td_equilibrium_net": "online",
     "bootstrap_on_truncation": True,
     "terminal_mask": "sample",
+    "hierarchy": None,
 }
 
 # Every coded option of the authors' CSQ at once (`--preset authors`, docs/algorithms.md).
@@ -45,6 +46,8 @@ AUTHORS_PRESET = {
     "terminal_mask": "batch_mean",
 }
 
+MAX_AGENTS = 4  # the critics cover the joint-action grid 5^K: 625 joint actions at K = 4
+
 HELP = {
     "updates_per_step": "gradient updates per loop iteration (authors: 1 per environment step)",
     "lr": "Adam learning rate of every reward and cost critic (authors' lr_critic)",
@@ -54,9 +57,9 @@ HELP = {
     "batch_size": "transitions per gradient update",
     "warmup": "transitions stored before the first update (authors' sample_size)",
     "buffer_size": "replay capacity per seed (FIFO); never more than total_steps slots are allocated",
-    "cost_threshold": "per-agent cost limits [d_leader, d_follower] (a single number sets both)",
-    "eps_start": "initial exploration probability [leader, follower] (a single number sets both)",
-    "eps_min": "exploration floor [leader, follower] (a single number sets both)",
+    "cost_threshold": "per-agent cost limits [d_leader, d_follower], one per agent (a single number sets all)",
+    "eps_start": "initial exploration probability [leader, follower], one per agent (a single number sets all)",
+    "eps_min": "exploration floor [leader, follower], one per agent (a single number sets all)",
     "eps_decay": "exploration decrease per environment step (linear)",
     "hidden_sizes": "hidden layer widths of each critic MLP",
     "init": "weight init: torch (the authors' PyTorch default) | lecun (flax default)",
@@ -73,6 +76,9 @@ HELP = {
     "terminal_mask": "which transitions bootstrap: sample (each transition's own terminal flag) | batch_mean (the "
                      "authors' effective rule: every transition bootstraps, discount scaled by the batch's done "
                      "fraction)",
+    "hierarchy": "who decides before whom: levels of agent indices, '|' between levels, ',' within one, e.g. "
+                 "'0|1|2' (chain), '0,1|2' (two leaders), '0,1,2' (no hierarchy); null: the chain 0|1|...|K-1 "
+                 "(docs/algorithms.md)",
 }
 
 PROB = PerAgent(Num(0.0, 1.0, hint="values are probabilities and must lie in [0, 1]"))
@@ -92,6 +98,18 @@ def check(cfg: dict) -> None:
     if cfg["warmup"] > cfg["buffer_size"]:
         raise ValueError(f"'warmup' ({cfg['warmup']}) exceeds buffer_size ({cfg['buffer_size']}): training would "
                          "never start; lower warmup or raise buffer_size")
+    k = cfg["agents"]
+    if k > MAX_AGENTS:
+        raise ValueError(f"'{cfg['algo']}' takes at most {MAX_AGENTS} agents (its critics cover all 5^K joint "
+                         f"actions), got agents={k}")
+    if cfg["hierarchy"] is not None:
+        from jaxsmarl.hierarchy import format_hierarchy, is_chain, validate_hierarchy
+
+        levels = validate_hierarchy(cfg["hierarchy"], k)
+        if cfg["leader_rule"] == "authors" and not is_chain(levels):
+            raise ValueError(f"leader_rule 'authors' needs a chain of single agents (e.g. '0|1|2'); hierarchy "
+                             f"'{format_hierarchy(levels)}' has a level of several agents")
+        cfg["hierarchy"] = format_hierarchy(levels)
 
 
 def make_agent(config: dict, env):
@@ -99,10 +117,10 @@ def make_agent(config: dict, env):
 
     if not env.discrete:
         raise ValueError(f"scenario '{config['scenario']}' has continuous actions but '{config['algo']}' needs "
-                         "discrete actions; use merge or roundabout")
+                         "discrete actions; use merge, roundabout or highway")
     n = env.num_agents
     return CSQAgent(CSQConfig(
-        num_actions=(int(env.num_actions),) * n, obs_dim=int(env.obs_shape[-1]),
+        num_actions=(int(env.num_actions),) * n, obs_dim=math.prod(env.obs_shape[1:]),
         hidden_sizes=tuple(config["hidden_sizes"]), init=config["init"], lr=config["lr"],
         gamma=config["gamma"], tau=config["tau"], target_update_every=config["target_update_every"],
         batch_size=config["batch_size"], cost_threshold=tuple(config["cost_threshold"]),
@@ -111,13 +129,14 @@ def make_agent(config: dict, env):
         td_action_state=config["td_action_state"], td_action_noise=config["td_action_noise"],
         td_equilibrium_net=config["td_equilibrium_net"],
         bootstrap_on_truncation=config["bootstrap_on_truncation"], terminal_mask=config["terminal_mask"],
+        hierarchy=config.get("hierarchy"),
     ))
 
 
 def make_train(config: dict, env=None):
     from train.loop import make_env, make_offpolicy_train
 
-    env = make_env(config["scenario"]) if env is None else env
+    env = make_env(config["scenario"], config.get("agents")) if env is None else env
     return make_offpolicy_train(config, env, make_agent(config, env[0]))
 
 

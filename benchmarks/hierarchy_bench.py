@@ -1,0 +1,178 @@
+"""Benchmark: hierarchies of K agents. (1) The batched equilibrium solver against a per-sample Python loop for
+vertical chains of K = 2..5 agents (5^K joint actions); (2) CSQ training speed on highway-v0 with K = 2, 3, 4
+controlled vehicles (critics over 5^K joint actions).
+
+(1) Both sides get the value tensors precomputed (no network). The loop is backward induction by exhaustive
+recursion over every prefix of actions, per sample, on nested Python lists (the fastest way to index them in
+Python; the array -> list conversion is not timed), with the solver's rule (constrained argmax, min_cost fallback,
+first-index ties); the two outputs are checked equal. Each repeat times the loop and the jitted solver side by
+side; medians are reported.
+
+(2) One seed, one environment, the chain hierarchy, everything else CSQ's defaults (batch 64, one update per step
+after the warm-up), compiled ahead of time (reported apart), then the training chunks timed as in
+``python -m train``. Steps are environment steps; after the warm-up every step also makes one gradient update.
+
+Run: python benchmarks/hierarchy_bench.py  (writes benchmarks/results/hierarchy.json)
+     python benchmarks/hierarchy_bench.py --train-steps 600 --solver-only
+"""
+
+from __future__ import annotations
+
+import argparse
+import gc
+import json
+import os
+import platform
+import statistics
+import sys
+import time
+
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+
+import jax  # noqa: E402
+import jax.numpy as jnp  # noqa: E402
+import numpy as np  # noqa: E402
+
+from jaxsmarl.stackelberg import stackelberg_equilibrium  # noqa: E402
+
+A = 5
+OUT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results", "hierarchy.json")
+
+
+def _get(x, joint):
+    for a in joint:
+        x = x[a]
+    return x
+
+
+def loop_chain(qs, gs, ds):
+    """Per-sample backward induction over a chain 0 | 1 | ... | K-1, by recursion over every prefix (lists in)."""
+    k = len(qs)
+    out = []
+    for b in range(len(qs[0])):
+        q = [qs[i][b] for i in range(k)]
+        g = [gs[i][b] for i in range(k)]
+        d = [ds[i][b] for i in range(k)]
+
+        def solve(prefix):
+            m = len(prefix)
+            if m == k:
+                return prefix
+            conts = [solve(prefix + (a,)) for a in range(A)]
+            vals = [(_get(q[m], c), _get(g[m], c)) for c in conts]
+            feasible = [a for a in range(A) if vals[a][1] <= d[m]]
+            if feasible:  # highest Q, first index on ties
+                best = max(feasible, key=lambda a: (vals[a][0], -a))
+            else:  # lowest cost, then highest Q, then first index
+                best = max(range(A), key=lambda a: (-vals[a][1], vals[a][0], -a))
+            return conts[best]
+
+        out.append(solve(()))
+    return np.asarray(out, np.int32)
+
+
+def make_inputs(k, batch, seed=0):
+    rng = np.random.default_rng(seed + k)
+    shape = (batch,) + (A,) * k
+    qs = [rng.normal(size=shape).astype(np.float32) for _ in range(k)]
+    gs = [rng.uniform(0.0, 1.0, size=shape).astype(np.float32) for _ in range(k)]
+    ds = [rng.uniform(-0.05, 0.6, size=(batch,)).astype(np.float32) for _ in range(k)]
+    return qs, gs, ds
+
+
+def bench_solver(k, batch, repeats, inner):
+    qs, gs, ds = make_inputs(k, batch)
+    lists = ([x.tolist() for x in qs], [x.tolist() for x in gs], [x.tolist() for x in ds])
+    solver = jax.jit(lambda q, g, d: stackelberg_equilibrium(q, g, d))
+    dev = (tuple(map(jnp.asarray, qs)), tuple(map(jnp.asarray, gs)), tuple(map(jnp.asarray, ds)))
+    want = loop_chain(*lists)
+    got = np.asarray(solver(*dev).block_until_ready())
+    assert np.array_equal(got, want), f"loop and jax solver disagree at K={k}"
+    loop_t, jax_t = [], []
+    gc.disable()
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        loop_chain(*lists)
+        loop_t.append(time.perf_counter() - t0)
+        t0 = time.perf_counter()
+        for _ in range(inner):
+            out = solver(*dev)
+        out.block_until_ready()
+        jax_t.append((time.perf_counter() - t0) / inner)
+    gc.enable()
+    loop_s, jax_s = statistics.median(loop_t), statistics.median(jax_t)
+    return {"agents": k, "joint_actions": A ** k, "batch": batch, "loop_s": loop_s, "jax_s": jax_s,
+            "ratio": loop_s / jax_s, "repeats": repeats, "jax_calls_per_repeat": inner}
+
+
+def bench_train(k, steps, warmup, chunk_steps):
+    from train.config import load_config
+    from train.loop import make_train, seed_keys
+
+    cfg = load_config("highway", "csq", dict(agents=k, num_seeds=1, num_envs=1, total_steps=steps, warmup=warmup,
+                                             chunk_steps=chunk_steps, checkpoint_every=0, eval_episodes=0))
+    trainer = make_train(cfg)
+    key = seed_keys(cfg)[0]
+    t0 = time.perf_counter()
+    init = jax.jit(trainer.init).lower(key).compile()
+    state = init(key)
+    chunk = jax.jit(trainer.run_chunk, donate_argnums=0).lower(state, jnp.int32(0)).compile()
+    compile_s = time.perf_counter() - t0
+    # the first chunk holds the warm-up; time the chunks after it, where every step also updates the critics
+    state, m = chunk(state, jnp.int32(0))
+    jax.block_until_ready(m)
+    load0 = os.getloadavg()[0]
+    t1, c1 = time.perf_counter(), time.process_time()
+    timed = 0
+    for c in range(1, trainer.n_chunks):
+        state, m = chunk(state, jnp.int32(c * trainer.chunk_iters))
+        jax.block_until_ready(m)
+        timed += chunk_steps
+    train_s = time.perf_counter() - t1
+    return {"agents": k, "joint_actions": A ** k, "hierarchy": "chain", "vehicles": int(trainer.env.num_slots),
+            "compile_s": round(compile_s, 2), "timed_steps": timed, "train_s": round(train_s, 2),
+            "env_steps_per_s": round(timed / train_s, 1), "cpu_s": round(time.process_time() - c1, 1),
+            "warmup_steps": warmup, "batch_size": cfg["batch_size"],
+            "load_avg_1m": [round(load0, 2), round(os.getloadavg()[0], 2)]}
+
+
+def main(argv=None):
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--agents", type=int, nargs="+", default=[2, 3, 4, 5], help="K for the solver")
+    p.add_argument("--batch", type=int, default=64)
+    p.add_argument("--train-agents", type=int, nargs="+", default=[2, 3, 4], help="K for CSQ training")
+    p.add_argument("--train-steps", type=int, default=900, help="steps per training run (the first chunk untimed)")
+    p.add_argument("--chunk-steps", type=int, default=300)
+    p.add_argument("--solver-only", action="store_true")
+    p.add_argument("--out", default=OUT)
+    args = p.parse_args(argv)
+
+    solver = [bench_solver(k, args.batch, repeats=5 if k >= 5 else 9, inner=20) for k in args.agents]
+    print(f"{'K':>2} {'joint':>6} {'batch':>6} {'loop (ms)':>11} {'jax (ms)':>10} {'loop/jax':>9}")
+    for r in solver:
+        print(f"{r['agents']:>2} {r['joint_actions']:>6} {r['batch']:>6} {r['loop_s'] * 1e3:>11.2f} "
+              f"{r['jax_s'] * 1e3:>10.4f} {r['ratio']:>9.0f}")
+    train = []
+    if not args.solver_only:
+        for k in args.train_agents:
+            train.append(bench_train(k, args.train_steps, args.chunk_steps, args.chunk_steps))
+            r = train[-1]
+            print(f"CSQ highway K={k} ({r['joint_actions']} joint actions, {r['vehicles']} vehicles): "
+                  f"{r['env_steps_per_s']} env steps/s (compile {r['compile_s']} s, load {r['load_avg_1m']})",
+                  flush=True)
+    meta = {"benchmark": "hierarchy: batched solver vs per-sample loop (chains, K agents); CSQ training on "
+                         "highway-v0 with K controlled vehicles",
+            "command": "python benchmarks/hierarchy_bench.py " + " ".join(argv if argv is not None else sys.argv[1:]),
+            "jax": jax.__version__, "device": str(jax.devices()[0]), "backend": jax.default_backend(),
+            "python": platform.python_version(), "cpu_count": os.cpu_count(),
+            "timing": "solver: median over repeats, loop and jax side by side, gc off; training: the chunks after "
+                      "the first (warm-up) chunk",
+            "load_average_1min": os.getloadavg()[0]}
+    os.makedirs(os.path.dirname(args.out), exist_ok=True)
+    with open(args.out, "w") as f:
+        json.dump({"meta": meta, "solver": solver, "train": train}, f, indent=2)
+    print(f"wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()
