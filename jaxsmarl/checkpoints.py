@@ -48,10 +48,23 @@ class CheckpointWriteError(RuntimeError):
 
 
 def _abstract(x: Any) -> jax.ShapeDtypeStruct:
-    if isinstance(x, jax.ShapeDtypeStruct):
+    """The restore target of template leaf ``x``: its own placement when it spans several processes, otherwise
+    this process's first device (which also reads a checkpoint that several processes wrote)."""
+    if isinstance(x, jax.Array) and not x.is_fully_addressable:  # restored into the same multi-process placement
+        return jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=x.sharding)
+    if isinstance(x, jax.ShapeDtypeStruct) and x.sharding is not None and not x.sharding.is_fully_addressable:
         return x
     dtype = x.dtype if hasattr(x, "dtype") else np.asarray(x).dtype
-    return jax.ShapeDtypeStruct(np.shape(x), dtype)
+    return jax.ShapeDtypeStruct(np.shape(x), dtype, sharding=jax.sharding.SingleDeviceSharding(jax.local_devices()[0]))
+
+
+def _host(x: Any) -> np.ndarray:
+    """Whole value of ``x`` on this host; an array sharded over several processes is gathered from all of them."""
+    if isinstance(x, jax.Array) and not x.is_fully_addressable:
+        from jax.experimental import multihost_utils
+
+        return np.asarray(multihost_utils.process_allgather(x, tiled=True))
+    return np.asarray(x)
 
 
 def _leaf_digest(x: Any) -> str:
@@ -73,6 +86,10 @@ def _short(e: BaseException) -> str:
     if len(text) > 200:  # the head says what failed, the tail why (e.g. the operating system's error)
         text = f"{text[:90]} ... {text[-100:]}"
     return f"{type(e).__name__}: {text}"
+
+
+def _spans_processes(state: Any) -> bool:
+    return any(isinstance(x, jax.Array) and not x.is_fully_addressable for x in jax.tree.leaves(state))
 
 
 class _QuietOrbax:
@@ -120,11 +137,13 @@ class Checkpointer:
     def save(self, step: int, state: Any, meta: dict | None = None) -> None:
         """Write ``state`` (pytree of arrays) and ``meta`` (JSON-serialisable dict) atomically as ``step``, with the
         digest of every leaf. Raises :class:`CheckpointWriteError` if the write fails."""
-        state = jax.tree.map(np.asarray, state)  # host copy: safe even if the device buffers are donated next
+        host = jax.tree.map(_host, state)  # host copy: safe even if the device buffers are donated next
+        # several processes: each writes its own shards of the global arrays (orbax's multi-process save)
+        state = state if _spans_processes(state) else host
         meta = dict(meta or {})
         if INTEGRITY_KEY in meta:
             raise ValueError(f"checkpoint metadata key {INTEGRITY_KEY!r} is reserved for the state's digests")
-        meta[INTEGRITY_KEY] = {"algorithm": "sha256", "leaves": state_digest(state)}
+        meta[INTEGRITY_KEY] = {"algorithm": "sha256", "leaves": state_digest(host)}
         args = ocp.args.Composite(state=ocp.args.StandardSave(state), meta=ocp.args.JsonSave(meta))
         try:
             self._manager.reload()  # the folder may have changed since (e.g. a damaged checkpoint set aside)
@@ -203,7 +222,7 @@ class Checkpointer:
         try:
             with _QuietOrbax():
                 state = self._manager.restore(step, args=args)["state"]
-            state = jax.tree.map(np.asarray, state)
+            state = jax.tree.map(_host, state)
         except Exception as e:  # noqa: BLE001 - a missing, truncated or garbled file ends up here
             _quiet_closed_loop_errors()
             raise self._invalid(step, f"its state is unreadable ({_short(e)})") from e

@@ -96,6 +96,19 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--eval-only", metavar="RUN_DIR", default=None,
                    help="only evaluate the newest checkpoint of RUN_DIR greedily and print the result")
     p.add_argument("--print-config", action="store_true", help="print the resolved configuration and exit")
+    g = p.add_argument_group("several processes (docs/distributed.md)")
+    g.add_argument("--coordinator-address", default=None, metavar="HOST:PORT",
+                   help="process 0's address and a free port; with --num-processes and --process-id this process "
+                        "is one of several training the seeds together (env: JAX_COORDINATOR_ADDRESS)")
+    g.add_argument("--num-processes", type=int, default=None, help="number of processes (env: JAX_NUM_PROCESSES)")
+    g.add_argument("--process-id", type=int, default=None,
+                   help="this process's index, 0 .. num_processes-1; process 0 writes the run folder's files "
+                        "(env: JAX_PROCESS_ID)")
+    g.add_argument("--distributed", action="store_true",
+                   help="join a multi-process run, letting JAX detect the values not given (SLURM, Open MPI)")
+    g.add_argument("--heartbeat-timeout", type=int, default=None, metavar="SECONDS",
+                   help="a process silent this long is declared dead and the others stop with an error "
+                        "(default 30)")
     p.add_argument("--quiet", action="store_true", help="no progress line")
     return p.parse_args(argv)
 
@@ -139,6 +152,12 @@ def main(argv=None) -> int:
 
     use_all_cpu_cores()  # seeds are split over the cores (a no-op once JAX has started, e.g. inside tests)
     try:
+        from train import distributed
+
+        cluster = distributed.from_options(args.coordinator_address, args.num_processes, args.process_id,
+                                           args.distributed, args.heartbeat_timeout)
+        if cluster.requested and not args.print_config:
+            distributed.initialize(cluster)
         if args.eval_only:
             from train.run import evaluate_checkpoint
 
