@@ -80,6 +80,10 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--config", default=None, help="JSON file replacing train/configs/<scenario>_<algo>.json")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="override any configuration key (repeatable), e.g. --set lr=3e-4 --set cost_threshold=[2,2]")
+    p.add_argument("--sweep", action="append", default=[], metavar="KEY=[V1,V2,...]",
+                   help="train every combination of these values (repeatable), each with all the seeds, in one "
+                        "compiled program; real-valued keys only (learning rates, thresholds, multiplier rates, "
+                        "exploration, loss weights); results per configuration in <out>/configs/")
     p.add_argument("--preset", default=None, metavar="NAME",
                    help="a named set of values applied after the config file and before --set; 'authors' turns on "
                         "every coded option of the authors' implementation (listed below)")
@@ -167,6 +171,19 @@ def main(argv=None) -> int:
         cfg = build_config(args)
         if args.print_config:
             print(json.dumps(cfg, indent=2))
+            return 0
+        if args.sweep:
+            from train.sweep import parse_sweep, run_sweep, sweep_configs
+
+            sweep = parse_sweep(args.sweep)
+            sweep_configs(cfg, sweep)  # refuses keys that cannot be swept before anything is compiled
+            if args.resume:
+                raise ValueError("--resume does not continue a sweep; run the sweep again into a new --out")
+            out = args.out or os.path.join("runs", f"{cfg['scenario']}_{cfg['algo']}_sweep")
+            res = run_sweep(cfg, sweep, out, overwrite=args.overwrite, verbose=not args.quiet)
+            if not args.quiet:
+                print(f"sweep of {len(res['configs'])} configurations x {cfg['num_seeds']} seeds: {out}/sweep.json, "
+                      f"{out}/configs/<configuration>/, {out}/figures/")
             return 0
         out = args.out or os.path.join("runs", f"{cfg['scenario']}_{cfg['algo']}")
         from train.run import run

@@ -457,6 +457,13 @@ def evaluate_state(trainer, state, config: dict, eval_fn=None, sharding=None) ->
     if sharding is not None and not sharding.is_fully_addressable:
         keys = distributed.to_global(keys, sharding)
     rec = distributed.to_host(eval_fn(state.agent, keys))  # [S, N]
+    rows, summ = eval_rows(rec, config)
+    return {"rows": rows, "summary": summ}
+
+
+def eval_rows(rec: dict, config: dict) -> tuple[list[dict], dict]:
+    """``(rows, summary)`` of the greedy evaluation records ``rec`` (host arrays ``[S, N]``): one row per seed and
+    episode, and per field the per-seed means with a bootstrap interval across seeds."""
     rows = []
     n = config["eval_episodes"]
     for s in range(config["num_seeds"]):
@@ -469,7 +476,7 @@ def evaluate_state(trainer, state, config: dict, eval_fn=None, sharding=None) ->
         per_seed = [float(np.mean(rec[k][s, :n])) for s in range(config["num_seeds"])]
         summ[k] = {"mean_ci": metrics.bootstrap_ci(per_seed), "per_seed": per_seed}
     summ["unfinished_episodes"] = int(n * config["num_seeds"] - np.sum(rec["returned"][:, :n]))
-    return {"rows": rows, "summary": summ}
+    return rows, summ
 
 
 def _write_eval_csv(path: str, rows: list[dict]) -> None:
