@@ -47,15 +47,17 @@ class CheckpointWriteError(RuntimeError):
     """A save that did not complete (no space, permission denied, ...); earlier checkpoints are untouched."""
 
 
-def _abstract(x: Any) -> jax.ShapeDtypeStruct:
-    """The restore target of template leaf ``x``: its own placement when it spans several processes, otherwise
-    this process's first device (which also reads a checkpoint that several processes wrote)."""
+def _abstract(x: Any, on_device: bool = False) -> jax.ShapeDtypeStruct:
+    """The restore target of template leaf ``x``: its own placement when it spans several processes; otherwise
+    none, or this process's first device when ``on_device`` (needed to read a checkpoint that several processes
+    wrote)."""
     if isinstance(x, jax.Array) and not x.is_fully_addressable:  # restored into the same multi-process placement
         return jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=x.sharding)
-    if isinstance(x, jax.ShapeDtypeStruct) and x.sharding is not None and not x.sharding.is_fully_addressable:
+    if isinstance(x, jax.ShapeDtypeStruct) and (x.sharding is not None or not on_device):
         return x
     dtype = x.dtype if hasattr(x, "dtype") else np.asarray(x).dtype
-    return jax.ShapeDtypeStruct(np.shape(x), dtype, sharding=jax.sharding.SingleDeviceSharding(jax.local_devices()[0]))
+    device = jax.sharding.SingleDeviceSharding(jax.local_devices()[0]) if on_device else None
+    return jax.ShapeDtypeStruct(np.shape(x), dtype, sharding=device)
 
 
 def _host(x: Any) -> np.ndarray:
@@ -217,11 +219,14 @@ class Checkpointer:
         step = self._step(step)
         meta = self._read_meta(step)
         integrity = meta.pop(INTEGRITY_KEY, None)
-        abstract = jax.tree.map(_abstract, template)
-        args = ocp.args.Composite(state=ocp.args.StandardRestore(abstract))
         try:
             with _QuietOrbax():
-                state = self._manager.restore(step, args=args)["state"]
+                try:
+                    state = self._restore_state(step, template, False)
+                except ValueError as e:  # written by several processes: read onto this process's device
+                    if "topology" not in str(e).lower():
+                        raise
+                    state = self._restore_state(step, template, True)
             state = jax.tree.map(_host, state)
         except Exception as e:  # noqa: BLE001 - a missing, truncated or garbled file ends up here
             _quiet_closed_loop_errors()
@@ -241,6 +246,11 @@ class Checkpointer:
             raise self._invalid(step, f"the digest of {len(bad)} of {len(found)} leaves does not match what was "
                                       f"saved (e.g. {bad[0]}): the data on disk changed")
         return state, meta
+
+    def _restore_state(self, step: int, template: Any, on_device: bool) -> Any:
+        abstract = jax.tree.map(lambda x: _abstract(x, on_device), template)
+        args = ocp.args.Composite(state=ocp.args.StandardRestore(abstract))
+        return self._manager.restore(step, args=args)["state"]
 
     def restore_valid(self, template: Any, on_skip: Callable[[CheckpointError], None] | None = None
                       ) -> tuple[int, Any, dict]:
