@@ -18,26 +18,27 @@ SMALL = dict(scenario="merge", algo="csq", num_seeds=2, total_steps=100, chunk_s
 LRS = [1e-3, 3e-3]
 
 
-def test_sweep_of_two_learning_rates_equals_four_separate_runs(tmp_path):
+@pytest.mark.parametrize("eval_episodes", [0, pytest.param(1, marks=pytest.mark.slow)])
+def test_sweep_of_two_learning_rates_equals_four_separate_runs(tmp_path, eval_episodes):
+    small = dict(SMALL, eval_episodes=eval_episodes)  # the greedy evaluation compiles a third program: slow
     out = str(tmp_path / "sweep")
     args = ["--quiet", "--out", out, "--sweep", f"lr={json.dumps(LRS)}"]
-    for k, v in SMALL.items():
+    for k, v in small.items():
         args += ["--scenario", v] if k == "scenario" else ["--algo", v] if k == "algo" else \
             ["--set", f"{k}={json.dumps(v)}"]
     assert cli.main(args) == 0
     sweep = json.load(open(os.path.join(out, "sweep.json")))
     assert [c["values"] for c in sweep["configurations"]] == [{"lr": lr} for lr in LRS]
     assert os.path.exists(os.path.join(out, "figures", "curves.png"))
-    from train.sweep import sweep_values  # noqa: F401  (the sweep's state is checked through its checkpoint)
     from jaxsmarl.checkpoints import Checkpointer
 
     for c, lr in enumerate(LRS):
-        cfg = load_config("merge", "csq", {**{k: v for k, v in SMALL.items() if k not in ("scenario", "algo")},
+        cfg = load_config("merge", "csq", {**{k: v for k, v in small.items() if k not in ("scenario", "algo")},
                                            "lr": lr})
         alone = train.run.run(cfg, str(tmp_path / f"alone{c}"), verbose=False)
         folder = os.path.join(out, sweep["configurations"][c]["folder"])
         assert json.load(open(os.path.join(folder, "config.json"))) == cfg
-        for name in ("episodes.csv", "learner.csv", "eval.csv"):  # every seed's episodes, multipliers, evaluation
+        for name in ("episodes.csv", "learner.csv") + (("eval.csv",) if eval_episodes else ()):
             with open(os.path.join(folder, name)) as a, open(tmp_path / f"alone{c}" / name) as b:
                 got, want = a.read(), b.read()
             assert got == want and len(want.splitlines()) > 1, (lr, name)

@@ -54,6 +54,9 @@ examples:
   python -m train --eval-only runs/m --eval-episodes 20  # greedy evaluation of a saved run
   python -m train --set leader_rule=authors --set infeasible=argmax   # the authors' action rule
   python -m train --scenario racetrack --algo cs-maddpg --preset authors   # every coded option of theirs
+  python -m train --sweep lr=[3e-4,1e-3,3e-3] --seeds 8   # 3 learning rates x 8 seeds in one program
+  python -m train --seeds 8 --coordinator-address 127.0.0.1:12355 --num-processes 2 --process-id 0   # and id 1
+                                                        # (several processes and hosts: docs/distributed.md)
 
 configuration: defaults <- train/configs/<scenario>_<algo>.json <- --config FILE <- --preset <- options and --set.
 presets (the authors' coded options, docs/algorithms.md):

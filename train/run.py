@@ -322,6 +322,12 @@ def _run_locked(config: dict, out: str, *, resume: bool, env, verbose: bool, max
     trainer, sharding = prog["trainer"], prog["sharding"]
 
     ckpt = Checkpointer(os.path.join(out, "checkpoints"), max_to_keep=2)
+    if resume:
+        try:  # before anything is compiled
+            _check_process_count(ckpt)
+        except ValueError:
+            ckpt.close()
+            raise
     csv_path = os.path.join(out, "episodes.csv")
     learner_path = os.path.join(out, "learner.csv")
     main = distributed.is_main()
@@ -335,7 +341,6 @@ def _run_locked(config: dict, out: str, *, resume: bool, env, verbose: bool, max
     if resume:
         skipped: list[CheckpointError] = []
         try:  # the newest checkpoint that passes its digests
-            _check_process_count(ckpt)
             step, state, meta = ckpt.restore_valid(state, skipped.append)
             _check_process_count(ckpt, meta)
             if saved_cfg["total_steps"] != config["total_steps"]:
