@@ -47,11 +47,26 @@ class CheckpointWriteError(RuntimeError):
     """A save that did not complete (no space, permission denied, ...); earlier checkpoints are untouched."""
 
 
-def _abstract(x: Any) -> jax.ShapeDtypeStruct:
-    if isinstance(x, jax.ShapeDtypeStruct):
+def _abstract(x: Any, on_device: bool = False) -> jax.ShapeDtypeStruct:
+    """The restore target of template leaf ``x``: its own placement when it spans several processes; otherwise
+    none, or this process's first device when ``on_device`` (needed to read a checkpoint that several processes
+    wrote)."""
+    if isinstance(x, jax.Array) and not x.is_fully_addressable:  # restored into the same multi-process placement
+        return jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=x.sharding)
+    if isinstance(x, jax.ShapeDtypeStruct) and (x.sharding is not None or not on_device):
         return x
     dtype = x.dtype if hasattr(x, "dtype") else np.asarray(x).dtype
-    return jax.ShapeDtypeStruct(np.shape(x), dtype)
+    device = jax.sharding.SingleDeviceSharding(jax.local_devices()[0]) if on_device else None
+    return jax.ShapeDtypeStruct(np.shape(x), dtype, sharding=device)
+
+
+def _host(x: Any) -> np.ndarray:
+    """Whole value of ``x`` on this host; an array sharded over several processes is gathered from all of them."""
+    if isinstance(x, jax.Array) and not x.is_fully_addressable:
+        from jax.experimental import multihost_utils
+
+        return np.asarray(multihost_utils.process_allgather(x, tiled=True))
+    return np.asarray(x)
 
 
 def _leaf_digest(x: Any) -> str:
@@ -73,6 +88,10 @@ def _short(e: BaseException) -> str:
     if len(text) > 200:  # the head says what failed, the tail why (e.g. the operating system's error)
         text = f"{text[:90]} ... {text[-100:]}"
     return f"{type(e).__name__}: {text}"
+
+
+def _spans_processes(state: Any) -> bool:
+    return any(isinstance(x, jax.Array) and not x.is_fully_addressable for x in jax.tree.leaves(state))
 
 
 class _QuietOrbax:
@@ -120,11 +139,13 @@ class Checkpointer:
     def save(self, step: int, state: Any, meta: dict | None = None) -> None:
         """Write ``state`` (pytree of arrays) and ``meta`` (JSON-serialisable dict) atomically as ``step``, with the
         digest of every leaf. Raises :class:`CheckpointWriteError` if the write fails."""
-        state = jax.tree.map(np.asarray, state)  # host copy: safe even if the device buffers are donated next
+        host = jax.tree.map(_host, state)  # host copy: safe even if the device buffers are donated next
+        # several processes: each writes its own shards of the global arrays (orbax's multi-process save)
+        state = state if _spans_processes(state) else host
         meta = dict(meta or {})
         if INTEGRITY_KEY in meta:
             raise ValueError(f"checkpoint metadata key {INTEGRITY_KEY!r} is reserved for the state's digests")
-        meta[INTEGRITY_KEY] = {"algorithm": "sha256", "leaves": state_digest(state)}
+        meta[INTEGRITY_KEY] = {"algorithm": "sha256", "leaves": state_digest(host)}
         args = ocp.args.Composite(state=ocp.args.StandardSave(state), meta=ocp.args.JsonSave(meta))
         try:
             self._manager.reload()  # the folder may have changed since (e.g. a damaged checkpoint set aside)
@@ -198,12 +219,15 @@ class Checkpointer:
         step = self._step(step)
         meta = self._read_meta(step)
         integrity = meta.pop(INTEGRITY_KEY, None)
-        abstract = jax.tree.map(_abstract, template)
-        args = ocp.args.Composite(state=ocp.args.StandardRestore(abstract))
         try:
             with _QuietOrbax():
-                state = self._manager.restore(step, args=args)["state"]
-            state = jax.tree.map(np.asarray, state)
+                try:
+                    state = self._restore_state(step, template, False)
+                except ValueError as e:  # written by several processes: read onto this process's device
+                    if "topology" not in str(e).lower():
+                        raise
+                    state = self._restore_state(step, template, True)
+            state = jax.tree.map(_host, state)
         except Exception as e:  # noqa: BLE001 - a missing, truncated or garbled file ends up here
             _quiet_closed_loop_errors()
             raise self._invalid(step, f"its state is unreadable ({_short(e)})") from e
@@ -222,6 +246,11 @@ class Checkpointer:
             raise self._invalid(step, f"the digest of {len(bad)} of {len(found)} leaves does not match what was "
                                       f"saved (e.g. {bad[0]}): the data on disk changed")
         return state, meta
+
+    def _restore_state(self, step: int, template: Any, on_device: bool) -> Any:
+        abstract = jax.tree.map(lambda x: _abstract(x, on_device), template)
+        args = ocp.args.Composite(state=ocp.args.StandardRestore(abstract))
+        return self._manager.restore(step, args=args)["state"]
 
     def restore_valid(self, template: Any, on_skip: Callable[[CheckpointError], None] | None = None
                       ) -> tuple[int, Any, dict]:

@@ -55,6 +55,9 @@ examples:
   python -m train --set leader_rule=authors --set infeasible=argmax   # the authors' action rule
   python -m train --scenario racetrack --algo cs-maddpg --preset authors   # every coded option of theirs
   python -m train --scenario highway --agents 3 --hierarchy "0|1,2"   # CSQ, one leader, two followers
+  python -m train --sweep lr=[3e-4,1e-3,3e-3] --seeds 8   # 3 learning rates x 8 seeds in one program
+  python -m train --seeds 8 --coordinator-address 127.0.0.1:12355 --num-processes 2 --process-id 0   # and id 1
+                                                        # (several processes and hosts: docs/distributed.md)
 
 configuration: defaults <- train/configs/<scenario>_<algo>.json <- --config FILE <- --preset <- options and --set.
 presets (the authors' coded options, docs/algorithms.md):
@@ -88,6 +91,10 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--config", default=None, help="JSON file replacing train/configs/<scenario>_<algo>.json")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="override any configuration key (repeatable), e.g. --set lr=3e-4 --set cost_threshold=[2,2]")
+    p.add_argument("--sweep", action="append", default=[], metavar="KEY=[V1,V2,...]",
+                   help="train every combination of these values (repeatable), each with all the seeds, in one "
+                        "compiled program; real-valued keys only (learning rates, thresholds, multiplier rates, "
+                        "exploration, loss weights); results per configuration in <out>/configs/")
     p.add_argument("--preset", default=None, metavar="NAME",
                    help="a named set of values applied after the config file and before --set; 'authors' turns on "
                         "every coded option of the authors' implementation (listed below)")
@@ -104,6 +111,19 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--eval-only", metavar="RUN_DIR", default=None,
                    help="only evaluate the newest checkpoint of RUN_DIR greedily and print the result")
     p.add_argument("--print-config", action="store_true", help="print the resolved configuration and exit")
+    g = p.add_argument_group("several processes (docs/distributed.md)")
+    g.add_argument("--coordinator-address", default=None, metavar="HOST:PORT",
+                   help="process 0's address and a free port; with --num-processes and --process-id this process "
+                        "is one of several training the seeds together (env: JAX_COORDINATOR_ADDRESS)")
+    g.add_argument("--num-processes", type=int, default=None, help="number of processes (env: JAX_NUM_PROCESSES)")
+    g.add_argument("--process-id", type=int, default=None,
+                   help="this process's index, 0 .. num_processes-1; process 0 writes the run folder's files "
+                        "(env: JAX_PROCESS_ID)")
+    g.add_argument("--distributed", action="store_true",
+                   help="join a multi-process run, letting JAX detect the values not given (SLURM, Open MPI)")
+    g.add_argument("--heartbeat-timeout", type=int, default=None, metavar="SECONDS",
+                   help="a process silent this long is declared dead and the others stop with an error "
+                        "(default 30)")
     p.add_argument("--quiet", action="store_true", help="no progress line")
     return p.parse_args(argv)
 
@@ -147,6 +167,12 @@ def main(argv=None) -> int:
 
     use_all_cpu_cores()  # seeds are split over the cores (a no-op once JAX has started, e.g. inside tests)
     try:
+        from train import distributed
+
+        cluster = distributed.from_options(args.coordinator_address, args.num_processes, args.process_id,
+                                           args.distributed, args.heartbeat_timeout)
+        if cluster.requested and not args.print_config:
+            distributed.initialize(cluster)
         if args.eval_only:
             from train.run import evaluate_checkpoint
 
@@ -156,6 +182,19 @@ def main(argv=None) -> int:
         cfg = build_config(args)
         if args.print_config:
             print(json.dumps(cfg, indent=2))
+            return 0
+        if args.sweep:
+            from train.sweep import parse_sweep, run_sweep, sweep_configs
+
+            sweep = parse_sweep(args.sweep)
+            sweep_configs(cfg, sweep)  # refuses keys that cannot be swept before anything is compiled
+            if args.resume:
+                raise ValueError("--resume does not continue a sweep; run the sweep again into a new --out")
+            out = args.out or os.path.join("runs", f"{cfg['scenario']}_{cfg['algo']}_sweep")
+            res = run_sweep(cfg, sweep, out, overwrite=args.overwrite, verbose=not args.quiet)
+            if not args.quiet:
+                print(f"sweep of {len(res['configs'])} configurations x {cfg['num_seeds']} seeds: {out}/sweep.json, "
+                      f"{out}/configs/<configuration>/, {out}/figures/")
             return 0
         out = args.out or os.path.join("runs", f"{cfg['scenario']}_{cfg['algo']}")
         from train.run import run

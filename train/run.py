@@ -30,6 +30,7 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from jaxsmarl import metrics
 from jaxsmarl.checkpoints import Checkpointer, CheckpointError
 from jaxsmarl.learner_log import LearnerLog, chunk_rows
+from train import distributed
 from train.loop import make_train, seed_keys
 from train.config import read_run_config
 from train.lock import LOCK_NAME, RunLock
@@ -70,16 +71,32 @@ def use_all_cpu_cores() -> bool:
     extra = [f for f in XLA_CPU_FLAGS if known and f.split("=")[0] not in flags]
     if extra:  # ahead of the user's: XLA stops reading XLA_FLAGS at the first word that is not a "--" flag
         os.environ["XLA_FLAGS"] = " ".join(extra + [flags]).strip()
+    if "xla_force_host_platform_device_count" in flags:  # the user's device count stands
+        return True
     try:
-        jax.config.update("jax_num_cpu_devices", max(1, os.cpu_count() or 1))
+        jax.config.update("jax_num_cpu_devices", max(1, _usable_cores()))
         return True
     except RuntimeError:
         return False
 
 
+def _usable_cores() -> int:
+    """The cores this process may run on (its CPU affinity, e.g. under ``taskset`` or a SLURM allocation)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not Linux
+        return os.cpu_count() or 1
+
+
 def seed_sharding(num_seeds: int):
-    """Split the seed axis over the local devices (as many as divide ``num_seeds``); None for one device."""
-    devices = jax.local_devices()
+    """Split the seed axis over the devices (as many as divide ``num_seeds``); None for one device. In a
+    multi-process run the mesh holds every device of every process, and ``num_seeds`` must be a multiple of their
+    number (each process runs the seeds of its own devices)."""
+    devices = jax.devices()
+    if jax.process_count() > 1 and num_seeds % len(devices):
+        raise ValueError(f"num_seeds ({num_seeds}) must be a multiple of the {len(devices)} devices of the "
+                         f"{jax.process_count()} processes in a multi-process run (each device runs as many seeds); "
+                         f"e.g. --seeds {(num_seeds // len(devices) + 1) * len(devices)}")
     n = math.gcd(num_seeds, len(devices))
     if n <= 1:
         return None
@@ -233,14 +250,18 @@ def run(config: dict, out: str, *, resume: bool = False, overwrite: bool = False
     Returns ``{"state": final state (all seeds), "log": EpisodeLog, "summary": dict}``.
     """
     out = os.path.abspath(out)
-    lock = RunLock(out).acquire() if os.path.isdir(out) else None  # a live run's folder is refused first
+    main = distributed.is_main()  # in a multi-process run, process 0 holds the lock and writes the files
+    lock = RunLock(out).acquire() if main and os.path.isdir(out) else None  # a live run's folder is refused first
     try:
         _check_out_dir(out, resume, overwrite)
-        os.makedirs(out, exist_ok=True)
-        lock = lock or RunLock(out).acquire()
-        if overwrite and not resume:
-            _clear_run_dir(out)
-        return _run_locked(config, out, resume=resume, env=env, verbose=verbose, max_chunks=max_chunks)
+        distributed.sync("run folder checked")  # every process has seen the folder before process 0 changes it
+        if main:
+            os.makedirs(out, exist_ok=True)
+            lock = lock or RunLock(out).acquire()
+            if overwrite and not resume:
+                _clear_run_dir(out)
+        distributed.sync("run folder ready")
+        return _run_locked(config, out, resume=resume, env=env, verbose=verbose and main, max_chunks=max_chunks)
     finally:
         if lock is not None:
             lock.release()
@@ -258,6 +279,21 @@ def _clear_run_dir(out: str) -> None:
             shutil.rmtree(path)
         else:
             os.remove(path)
+
+
+def _check_process_count(ckpt: Checkpointer, meta: dict | None = None) -> None:
+    """A run resumes with as many processes as wrote its checkpoints (``meta`` of the restored one, or the newest
+    one's when it is readable): each process restores the seeds of its own devices."""
+    if meta is None:
+        try:
+            meta = ckpt.meta()
+        except (CheckpointError, FileNotFoundError):
+            return  # unreadable: restore_valid finds an intact one, checked afterwards
+    saved, now = int(meta.get("num_processes", 1)), distributed.process_count()
+    if saved != now:
+        raise ValueError(f"--resume: the run was trained by {saved} process{'es' if saved > 1 else ''} and this "
+                         f"is {now}; resume it with --num-processes {saved} (the seeds of each process's devices "
+                         f"are in its checkpoints), or start a new --out")
 
 
 def _set_aside(out: str, step: int) -> str:
@@ -286,9 +322,18 @@ def _run_locked(config: dict, out: str, *, resume: bool, env, verbose: bool, max
     trainer, sharding = prog["trainer"], prog["sharding"]
 
     ckpt = Checkpointer(os.path.join(out, "checkpoints"), max_to_keep=2)
+    if resume:
+        try:  # before anything is compiled
+            _check_process_count(ckpt)
+        except ValueError:
+            ckpt.close()
+            raise
     csv_path = os.path.join(out, "episodes.csv")
     learner_path = os.path.join(out, "learner.csv")
-    state = prog["init"](seed_keys(config))
+    main = distributed.is_main()
+    multi = distributed.process_count() > 1
+    keys = seed_keys(config)
+    state = prog["init"](distributed.to_global(keys, sharding) if multi else keys)
     done_chunks = 0
     log = metrics.EpisodeLog(S)
     learner = LearnerLog()
@@ -297,13 +342,17 @@ def _run_locked(config: dict, out: str, *, resume: bool, env, verbose: bool, max
         skipped: list[CheckpointError] = []
         try:  # the newest checkpoint that passes its digests
             step, state, meta = ckpt.restore_valid(state, skipped.append)
+            _check_process_count(ckpt, meta)
             if saved_cfg["total_steps"] != config["total_steps"]:
                 _check_new_budget(saved_cfg, config, meta, trainer, env)
         except ValueError:
             ckpt.close()
             raise
         for e in skipped:  # said even when quiet: the newest checkpoint is not the one resumed
-            _print(f"{name}: skipped checkpoint {e.step} ({e.reason}); moved it to {_set_aside(out, e.step)}", False)
+            if main:
+                _print(f"{name}: skipped checkpoint {e.step} ({e.reason}); moved it to {_set_aside(out, e.step)}",
+                       False)
+        distributed.sync("damaged checkpoints set aside")
         done_chunks = int(meta["chunks_done"])
         prev = {k: meta.get(k, v) for k, v in prev.items()}
         if os.path.exists(csv_path):
@@ -314,8 +363,9 @@ def _run_locked(config: dict, out: str, *, resume: bool, env, verbose: bool, max
         if verbose:
             unchecked = " (saved without digests: not verified)" if meta.get("verified") is False else ""
             _print(f"{name}: resumed from {out}/checkpoints at {meta['env_steps']} env steps{unchecked}", False)
-    metrics.write_json(cfg_path, config)  # after the resume checks: a refused resume leaves the saved run as it was
-    state = jax.device_put(state, sharding)
+    if main:  # after the resume checks: a refused resume leaves the saved run as it was
+        metrics.write_json(cfg_path, config)
+    state = distributed.to_global(state, sharding) if multi else jax.device_put(state, sharding)
     jax.block_until_ready(state)
 
     t_compile = time.perf_counter()
@@ -336,7 +386,7 @@ def _run_locked(config: dict, out: str, *, resume: bool, env, verbose: bool, max
         fn = compiled["tail"] if (trainer.run_tail is not None and c == trainer.n_chunks - 1) else compiled["chunk"]
         t = time.perf_counter()
         state, m = fn(state, jnp.int32(start_iter))
-        m = jax.device_get(m)
+        m = distributed.to_host(m) if multi else jax.device_get(m)
         dt = time.perf_counter() - t
         train_s += dt
         n_iter = m["episode"]["returned"].shape[1]
@@ -348,14 +398,17 @@ def _run_locked(config: dict, out: str, *, resume: bool, env, verbose: bool, max
             learner.add(chunk_rows(m["update"], env_steps, m.get("updated")))
         last_meta = {"chunks_done": c + 1, "env_steps": env_steps,
                      "train_s_total": prev["train_s_total"] + train_s,
-                     "compile_s_total": prev["compile_s_total"] + compile_s, "segments": prev["segments"] + 1}
+                     "compile_s_total": prev["compile_s_total"] + compile_s, "segments": prev["segments"] + 1,
+                     "num_processes": distributed.process_count(), "num_devices": len(jax.devices())}
         is_last = c == trainer.n_chunks - 1
         if is_last or (ckpt_every_chunks and (c + 1) % ckpt_every_chunks == 0) or (
                 max_chunks is not None and n_run >= max_chunks):
             # episodes first: a checkpoint never runs ahead of the log (resuming drops logged episodes past it)
-            log.write_csv(csv_path)
-            learner.write_csv(learner_path)
-            ckpt.save(env_steps, state, last_meta)
+            if main:
+                log.write_csv(csv_path)
+                learner.write_csv(learner_path)
+            distributed.sync(f"log written at {env_steps}")
+            ckpt.save(env_steps, state, last_meta)  # every process writes its own seeds' shards
         if verbose:
             recent = [r for r in log.rows if r["end_step"] > env_steps - config["chunk_steps"]]
             sps = steps_run / max(train_s, 1e-9)
@@ -366,8 +419,9 @@ def _run_locked(config: dict, out: str, *, resume: bool, env, verbose: bool, max
             _print(line, True, end="\n" if is_last else "\r")
     chunks_done = last_meta.get("chunks_done", done_chunks)
     finished = chunks_done == trainer.n_chunks
-    log.write_csv(csv_path)
-    learner.write_csv(learner_path)
+    if main:
+        log.write_csv(csv_path)
+        learner.write_csv(learner_path)
 
     timing = {"setup_s": setup_s, "compile_s": compile_s, "train_s": train_s, "env_steps_run": steps_run,
               "env_steps_per_s_per_seed": steps_run / max(train_s, 1e-9),
@@ -383,22 +437,38 @@ def _run_locked(config: dict, out: str, *, resume: bool, env, verbose: bool, max
     if learner.rows:
         summary["learner"] = learner.summary()
     if finished and config["eval_episodes"] > 0:
-        ev = evaluate_state(trainer, state, config, prog["evaluate"])
+        ev = evaluate_state(trainer, state, config, prog["evaluate"], sharding)
         summary["eval"] = ev["summary"]
-        _write_eval_csv(os.path.join(out, "eval.csv"), ev["rows"])
-    metrics.write_json(summary_path, summary)
+        if main:
+            _write_eval_csv(os.path.join(out, "eval.csv"), ev["rows"])
+    if multi:
+        timing["num_processes"] = distributed.process_count()
+        timing["num_devices"] = len(jax.devices())
+    if main:
+        metrics.write_json(summary_path, summary)
     ckpt.close()
+    distributed.sync("run finished")
     if verbose and finished:
         _print(_final_report(name, summary), False)
     return {"state": state, "log": log, "summary": summary}
 
 
-def evaluate_state(trainer, state, config: dict, eval_fn=None) -> dict:
-    """Greedy evaluation of every seed's agent: ``eval_episodes`` episodes each (vmapped over seeds)."""
+def evaluate_state(trainer, state, config: dict, eval_fn=None, sharding=None) -> dict:
+    """Greedy evaluation of every seed's agent: ``eval_episodes`` episodes each (vmapped over seeds; ``sharding``:
+    the seeds' placement, needed when it spans several processes)."""
     key = jax.random.PRNGKey(config["seed"] + 10_000)
     keys = jax.random.split(key, config["num_seeds"])
     eval_fn = jax.jit(jax.vmap(trainer.evaluate)) if eval_fn is None else eval_fn
-    rec = jax.device_get(eval_fn(state.agent, keys))  # [S, N]
+    if sharding is not None and not sharding.is_fully_addressable:
+        keys = distributed.to_global(keys, sharding)
+    rec = distributed.to_host(eval_fn(state.agent, keys))  # [S, N]
+    rows, summ = eval_rows(rec, config)
+    return {"rows": rows, "summary": summ}
+
+
+def eval_rows(rec: dict, config: dict) -> tuple[list[dict], dict]:
+    """``(rows, summary)`` of the greedy evaluation records ``rec`` (host arrays ``[S, N]``): one row per seed and
+    episode, and per field the per-seed means with a bootstrap interval across seeds."""
     rows = []
     n = config["eval_episodes"]
     for s in range(config["num_seeds"]):
@@ -411,7 +481,7 @@ def evaluate_state(trainer, state, config: dict, eval_fn=None) -> dict:
         per_seed = [float(np.mean(rec[k][s, :n])) for s in range(config["num_seeds"])]
         summ[k] = {"mean_ci": metrics.bootstrap_ci(per_seed), "per_seed": per_seed}
     summ["unfinished_episodes"] = int(n * config["num_seeds"] - np.sum(rec["returned"][:, :n]))
-    return {"rows": rows, "summary": summ}
+    return rows, summ
 
 
 def _write_eval_csv(path: str, rows: list[dict]) -> None:
@@ -463,7 +533,8 @@ def evaluate_checkpoint(out: str, episodes: int | None = None, step: int | None 
     prog = _program(config, env)
     template = jax.eval_shape(prog["init"], seed_keys(config))
     state, meta = _restore_checked(os.path.join(out, "checkpoints"), step, template)
-    ev = evaluate_state(prog["trainer"], jax.device_put(state, prog["sharding"]), config, prog["evaluate"])
+    ev = evaluate_state(prog["trainer"], distributed.to_global(state, prog["sharding"]), config, prog["evaluate"],
+                        prog["sharding"])
     ev["env_steps"] = meta.get("env_steps")
     return ev
 
