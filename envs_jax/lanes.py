@@ -378,9 +378,20 @@ def _circular_from_polar(r, phi_c, radius_c):
     return s, lat
 
 
+def _pick_circle(values, c):
+    """``values[..., c]`` over the (few, static) circle centres as a chain of selections: it
+    broadcasts ``c`` against ``values[..., j]`` without gathering at the broadcast shape."""
+    out = values[..., 0]
+    for j in range(1, values.shape[-1]):
+        out = jnp.where(c == j, values[..., j], out)
+    return out
+
+
 def lane_coords(lanes: LaneTable, px, py, circles, idx, sine: bool = True):
-    """Exact ``(s, lat)`` of a point on lane ``idx`` (table row, traced; shape ``[...]`` like
-    ``px``), given its :func:`circle_coords` ``circles`` (``([..., C], [..., C])``).
+    """Exact ``(s, lat)`` of a point on lane ``idx`` (table row, traced; ``idx`` and ``px``
+    broadcast together), given its :func:`circle_coords` ``circles`` (``([..., C], [..., C])``,
+    ``[...]`` like ``px``). The lane rows are gathered at ``idx``'s own shape, so many points
+    on few lanes (``idx [Q, 1]``, ``px [N]``) cost ``Q`` row gathers, not ``Q N``.
     ``sine=False`` leaves a sine lane's lateral coordinate measured from its base line."""
     sine = sine and lanes.sine_rows.size > 0
     names = ["start_x", "start_y", "dir_x", "dir_y", "lat_x", "lat_y"]
@@ -393,9 +404,8 @@ def lane_coords(lanes: LaneTable, px, py, circles, idx, sine: bool = True):
     if sine:
         lat = jnp.where(kind == SINE, lat - _sine_offset(r, s), lat)
     if lanes.circular_rows.size:
-        c = jnp.asarray(np.maximum(lanes.circle_of_lane, 0))[idx][..., None]
-        phi_c = jnp.take_along_axis(circles[0], c, axis=-1)[..., 0]
-        radius_c = jnp.take_along_axis(circles[1], c, axis=-1)[..., 0]
+        c = jnp.asarray(np.maximum(lanes.circle_of_lane, 0))[idx]
+        phi_c, radius_c = _pick_circle(circles[0], c), _pick_circle(circles[1], c)
         s_c, lat_c = _circular_from_polar(r, phi_c, radius_c)
         circ = kind == CIRCULAR
         s, lat = jnp.where(circ, s_c, s), jnp.where(circ, lat_c, lat)

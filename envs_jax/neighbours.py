@@ -22,11 +22,11 @@ def coordinates_on(lanes: L.LaneTable, query_lane, px, py):
     (any shape ``[...]``): ``(s, lat)`` of shape ``[..., N]``."""
     q = jnp.asarray(query_lane)[..., None]
     shape = q.shape[:-1] + px.shape
-    phi, radius = L.circle_coords(lanes, px, py)  # [N, C]: once per object, not per query lane
-    circles = (jnp.broadcast_to(phi, shape + phi.shape[-1:]), jnp.broadcast_to(radius, shape + radius.shape[-1:]))
-    px, py = jnp.broadcast_to(px, shape), jnp.broadcast_to(py, shape)
-    # only the lane families the road has (a straight road costs no trigonometry)
-    return L.lane_coords(lanes, px, py, circles, jnp.broadcast_to(q, shape))
+    circles = L.circle_coords(lanes, px, py)  # [N, C]: once per object, not per query lane
+    # lane rows gathered per query lane ([..., 1]) and broadcast over the objects; only the
+    # lane families the road has (a straight road costs no trigonometry)
+    s, lat = L.lane_coords(lanes, px, py, circles, q)
+    return jnp.broadcast_to(s, shape), jnp.broadcast_to(lat, shape)
 
 
 def on_lane(lanes: L.LaneTable, query_lane, s, lat):

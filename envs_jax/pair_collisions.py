@@ -20,6 +20,8 @@ from envs_jax import collision
 from envs_jax import vehicle as Veh
 from envs_jax.sparse import sparse_map
 
+SAT_ROWS_PER_VEHICLE = 0.25  # separating-axis rows packed per vehicle slot and env under vmap (more run in extra chunks)
+
 
 def pair_table(n_slots: int, n_obstacles: int, check_collisions):
     """Static ``(a, b, checked)`` arrays of the pairs in loop order (obstacles are ``V + o``)."""
@@ -73,7 +75,9 @@ def collide(x, y, heading, speed, alive, crashed, check_collisions, obstacles, d
         return collision.polygons_intersecting(sa.corners, sb.corners, disp_a, disp_b)
 
     close = jax.vmap(near)(pose_a, pose_b) & active
-    inter, will, trans = sparse_map(separating_axis, close, pose_a, pose_b, fraction=1 / 32)
+    # chunks sized by the vehicles, not the pairs: each vehicle has a few close neighbours, not O(V)
+    fraction = min(1 / 32, SAT_ROWS_PER_VEHICLE * n_slots / a.size)
+    inter, will, trans = sparse_map(separating_axis, close, pose_a, pose_b, fraction=fraction)
     inter, will = inter & close, will & close
 
     b_vehicle = b < n_slots

@@ -151,3 +151,23 @@ def test_lane_coords_equal_local_coordinates(name, x64):
         es, elat = L.local_coordinates(lanes, idx, pts[:, 0], pts[:, 1])
         np.testing.assert_allclose(np.asarray(s), np.asarray(es), rtol=0, atol=1e-9)
         np.testing.assert_allclose(np.asarray(lat), np.asarray(elat), rtol=0, atol=1e-9)
+
+
+@pytest.mark.parametrize("name", ["roundabout", "racetrack"])
+def test_lane_coords_broadcast_query_lanes(name, x64):
+    """Few query lanes against many points (``idx [Q, 1]``, ``px [N]``, circle coordinates ``[N, C]``, as
+    ``neighbours.coordinates_on`` calls it) = ``local_coordinates`` point by point, on every lane."""
+    from envs_jax import neighbours
+    lanes = envs_jax.make(name).road.lanes
+    assert lanes.circle_centers.shape[0] >= 1
+    rng = np.random.default_rng(11)
+    lo, hi = BOX[name]
+    pts = jnp.asarray(rng.uniform(lo, hi, size=(200, 2)))
+    query = jnp.arange(lanes.size, dtype=jnp.int32)
+    s, lat = neighbours.coordinates_on(lanes, query, pts[:, 0], pts[:, 1])
+    assert s.shape == (lanes.size, 200)
+    idx = jnp.broadcast_to(query[:, None], s.shape)
+    px, py = jnp.broadcast_to(pts[:, 0], s.shape), jnp.broadcast_to(pts[:, 1], s.shape)
+    es, elat = L.local_coordinates(lanes, idx, px, py)
+    np.testing.assert_allclose(np.asarray(s), np.asarray(es), rtol=0, atol=1e-9)
+    np.testing.assert_allclose(np.asarray(lat), np.asarray(elat), rtol=0, atol=1e-9)
