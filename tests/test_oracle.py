@@ -199,7 +199,7 @@ def test_racetrack_geometry():  # docs/scenarios.md, lane tables
 
 
 # --------------------------------------------------------------------------------------------------
-# Configuration and initial states (§1.6, §2.3, §3.3, §4.3, §5.3)
+# Configuration and initial states (docs/scenarios.md)
 # --------------------------------------------------------------------------------------------------
 
 
@@ -289,7 +289,7 @@ def test_intersection_start_offsets():
 # --------------------------------------------------------------------------------------------------
 
 
-def test_merge_idle_idle():  # §2.6 row 1
+def test_merge_idle_idle():  # a constant-action roll-out checked against highway-env, case 1
     r = _run("merge", IDLE, IDLE)
     assert r["length"] == 12 and r["done"][-1] and not r["done"][:-1].any()
     # follower hits the obstacle during decision 10, at x = 306.5 on the merge lane (b,c,2)
@@ -309,18 +309,18 @@ def test_merge_idle_idle():  # §2.6 row 1
     assert r["first_arrived"][-1] == 1
 
 
-def test_merge_faster_faster():  # §2.6 row 2
+def test_merge_faster_faster():  # a constant-action roll-out checked against highway-env, case 2
     r = _run("merge", FASTER, FASTER)
     assert r["length"] == 9
     assert _first(r["crashed"][:, 1]) == 8  # follower into the obstacle at t = 8
     assert _first(r["crashed"][:, 0]) == 9  # leader (lane 1, x ~ 307 at t = 8) into the displaced follower
     assert r["lane"][8, 0] == 3 and r["x"][8, 0] == pytest.approx(307, abs=0.01)  # lane 3 = (b, c, 1)
     assert r["crash"][-1] and r["terminated"][-1].all()
-    # derived from §2.4: +2 while target index >= 1, -5 per crashed step
+    # derived from merge's reward (docs/scenarios.md): +2 while target index >= 1, -5 per crashed step
     np.testing.assert_array_equal(r["reward"].sum(0), [8 * 2 - 3, 7 * 2 - 3 - 3])
 
 
-def test_merge_faster_lane_left():  # §2.6 row 3
+def test_merge_faster_lane_left():  # a constant-action roll-out checked against highway-env, case 3
     r = _run("merge", FASTER, LANE_LEFT)
     lanes = [f"{f}-{t}-{i}" for f, t, i, _ in oracle_lanes("merge")]
     follower_lanes = [lanes[k] for k in r["lane"][:, 1]]
@@ -334,7 +334,7 @@ def test_merge_faster_lane_left():  # §2.6 row 3
     assert r["first_arrived"][-1] == 1 and r["speed"][10, 0] == pytest.approx(30, abs=1e-3)
 
 
-def test_roundabout_idle_idle():  # §3.6 row 1
+def test_roundabout_idle_idle():  # a constant-action roll-out checked against highway-env, case 1
     r = _run("roundabout", IDLE, IDLE)
     assert r["length"] == 8
     assert _first(r["crashed"][:, 0]) == 8 and _first(r["crashed"][:, 1]) == 8  # mutual crash at t = 8
@@ -343,14 +343,14 @@ def test_roundabout_idle_idle():  # §3.6 row 1
     np.testing.assert_array_equal(r["cost"][-1], [5, 5])
 
 
-def test_roundabout_faster_faster():  # §3.6 row 2
+def test_roundabout_faster_faster():  # a constant-action roll-out checked against highway-env, case 2
     r = _run("roundabout", FASTER, FASTER)
     assert r["length"] == 5 and _first(r["crash"]) == 4  # crash at t = 5
     assert (r["speed"][4] > 15.9).all() and (r["target_speed"][4] == 16).all()  # both ~16 m/s
     assert r["crashed"][5].all()
 
 
-def test_roundabout_faster_idle():  # §3.6 row 3
+def test_roundabout_faster_idle():  # a constant-action roll-out checked against highway-env, case 3
     r = _run("roundabout", FASTER, IDLE)
     assert r["length"] == 20 and not r["crash"].any()
     assert _first(r["arrived"][:, 0]) == 10  # leader arrives at t = 11 ...
@@ -367,7 +367,7 @@ def test_roundabout_faster_idle():  # §3.6 row 3
                                     ("wx", "we"), ("we", "sx"), ("sx", "se")}
 
 
-def test_intersection_constant_speed():  # §4.3 / §4.4: a = 0
+def test_intersection_constant_speed():  # a = 0
     r = _run("intersection", 0.0, 0.0)
     assert r["length"] == 5 and _first(r["crash"]) == 4  # crash in the middle at t = 5
     np.testing.assert_array_equal(r["reward"], [[2, 2]] * 4 + [[-3, -3]])
@@ -376,7 +376,7 @@ def test_intersection_constant_speed():  # §4.3 / §4.4: a = 0
     assert not r["arrived"].any() and r["first_arrived"][-1] == 0
 
 
-def test_intersection_leader_fast_follower_reverse():  # §4.4: leader a = +1, follower a = -1
+def test_intersection_leader_fast_follower_reverse():  # leader a = +1, follower a = -1
     r = _run("intersection", 1.0, -1.0)
     assert r["length"] == 8 and not r["crash"].any()
     assert _first(r["arrived"][:, 0]) == 3 and r["first_arrived"][3] == 1  # leader arrives first at t = 4
@@ -387,7 +387,7 @@ def test_intersection_leader_fast_follower_reverse():  # §4.4: leader a = +1, f
     assert r["speed"][8, 1] < 0 and not r["arrived"][:, 1].any()
 
 
-def test_racetrack_steering_zero():  # §5.3 / §5.6: steering 0 for both
+def test_racetrack_steering_zero():  # steering 0 for both
     r = _run("racetrack", 0.0, 0.0, steps=200)
     assert r["length"] == 21  # episode over at step 21, x = 119
     assert _first(~r["on_road"][:, 0]) == 21 and r["x"][21, 0] == pytest.approx(119)
@@ -401,14 +401,14 @@ def test_racetrack_steering_zero():  # §5.3 / §5.6: steering 0 for both
     assert r["reward"][-1].tolist() == [0, 0] and not r["crash"].any()
 
 
-def test_racetrack_steering_positive():  # §5.6: a = +0.3 for both
+def test_racetrack_steering_positive():  # a = +0.3 for both
     r = _run("racetrack", 0.3, 0.3, steps=200)
     assert r["length"] == 9 and r["terminated"][-1].all()
     assert _first(~r["on_road"][:, 0]) == 9 and _first(~r["on_road"][:, 1]) == 5
     np.testing.assert_allclose(r["sub_steering"], 0.3 * np.pi / 4)
 
 
-def test_racetrack_reward_formula():  # §5.4 on the first step: centred, steering 0.3
+def test_racetrack_reward_formula():  # on the first step: centred, steering 0.3
     r = _run("racetrack", 0.3, 0.3, steps=200)
     env = make_oracle_env("racetrack")
     env.step((np.array([0.3]), np.array([0.3])))
@@ -417,7 +417,7 @@ def test_racetrack_reward_formula():  # §5.4 on the first step: centred, steeri
     assert r["reward"][0, 0] == pytest.approx((1 / (1 + 4 * lat**2) - 0.3 * 0.3 + 1) / 2, abs=1e-12)
 
 
-def test_racetrack_time_limit():  # §0.6: time 40.00000000000003 >= 40 at the 200th decision
+def test_racetrack_time_limit():  # time 40.00000000000003 >= 40 at the 200th decision
     env = make_oracle_env("racetrack")
     for _ in range(199):
         env.time += 1 / 5
@@ -469,7 +469,7 @@ def test_continuous_action_shapes_equivalent():
 
 
 def test_merge_obstacle_not_observed():
-    """include_obstacles=False: the follower next to the obstacle still observes the leader (§1.7)."""
+    """include_obstacles=False: the follower next to the obstacle still observes the leader (docs/scenarios.md, Observation)."""
     r = _run("merge", IDLE, IDLE)
     np.testing.assert_allclose(r["obs"][9:, 1, 4:6], np.stack([r["x"][9:, 0], r["y"][9:, 0]], -1), atol=1e-4)
 
