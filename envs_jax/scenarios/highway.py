@@ -269,6 +269,31 @@ def _idm(name, idm):
     return idm
 
 
+def config_given(name: str, cfg: dict, own_keys, env_config, overrides, connected_lanes: str | None = None) -> dict:
+    """The keys a traffic task's caller set (``env_config``, then keywords), after the checks every task shares.
+
+    Unknown keys, another ``other_vehicles_type`` than highway-env's IDM drivers and ``manual_control=True`` raise
+    ``ValueError``; rendering keys are dropped. ``neighbour_vehicles_connected_lanes=True`` is refused with
+    ``connected_lanes`` as the reason, or ignored where that is None (roads without connected lanes).
+    """
+    given = dict(env_config or {})
+    given.update(overrides)
+    allowed = sorted(set(cfg) | set(own_keys) | RENDER_KEYS
+                     | {"other_vehicles_type", "manual_control", "neighbour_vehicles_connected_lanes"})
+    unknown = sorted(k for k in given if k not in allowed)
+    if unknown:
+        raise ValueError(f"{name}: unknown config key(s) {unknown}; allowed: {allowed}")
+    for key in RENDER_KEYS:
+        given.pop(key, None)
+    if given.pop("other_vehicles_type", IDM_CLASS) != IDM_CLASS:
+        raise ValueError(f"{name}: other_vehicles_type must be {IDM_CLASS!r} (the IDM/MOBIL drivers)")
+    if given.pop("manual_control", False):
+        raise ValueError(f"{name}: manual_control=True is not supported (there is no keyboard in JAX)")
+    if given.pop("neighbour_vehicles_connected_lanes", False) and connected_lanes is not None:
+        raise ValueError(f"{name}: neighbour_vehicles_connected_lanes=True is not supported: {connected_lanes}")
+    return given
+
+
 def make_highway(name: str, env_config: dict | None = None, **overrides) -> TrafficEnv:
     """``highway-v0`` / ``highway-fast-v0`` from highway-env's config keys (``env_config`` and/or keywords).
 
@@ -281,22 +306,7 @@ def make_highway(name: str, env_config: dict | None = None, **overrides) -> Traf
     cfg = dict(DEFAULTS[name])
     cfg["observation"] = {"type": "Kinematics"}
     cfg["action"] = {"type": "DiscreteMetaAction"}
-    given = {}
-    given.update(env_config or {})
-    given.update(overrides)
-    allowed = sorted(set(cfg) | set(OWN_KEYS) | RENDER_KEYS
-                     | {"other_vehicles_type", "manual_control", "neighbour_vehicles_connected_lanes"})
-    unknown = sorted(k for k in given if k not in allowed)
-    if unknown:
-        raise ValueError(f"{name}: unknown config key(s) {unknown}; allowed: {allowed}")
-    for key in RENDER_KEYS:
-        given.pop(key, None)
-    if given.pop("other_vehicles_type", IDM_CLASS) != IDM_CLASS:
-        raise ValueError(f"{name}: other_vehicles_type must be {IDM_CLASS!r} (the IDM/MOBIL drivers)")
-    if given.pop("manual_control", False):
-        raise ValueError(f"{name}: manual_control=True is not supported (there is no keyboard in JAX)")
-    given.pop("neighbour_vehicles_connected_lanes", None)  # one road: no connected lanes to search
-    cfg.update(given)
+    cfg.update(config_given(name, cfg, OWN_KEYS, env_config, overrides))  # one road: no connected lanes
 
     sim = _int(name, "simulation_frequency", cfg["simulation_frequency"], 1)
     pol = _int(name, "policy_frequency", cfg["policy_frequency"], 1, sim)

@@ -42,7 +42,7 @@ from envs_jax import drivers, kinematic_obs, pair_collisions, regulation
 from envs_jax import lanes as L
 from envs_jax import vehicle as Veh
 from envs_jax.idm import IDMParams
-from envs_jax.scenarios.highway import RENDER_KEYS, _int, _number, _observation, _unwrap
+from envs_jax.scenarios.highway import _int, _number, _observation, _unwrap, config_given
 from envs_jax.scenarios.intersection import build_road
 from envs_jax.traffic_env import Task, TrafficEnv, TrafficParams
 from envs_jax.traffic_state import TrafficState
@@ -489,22 +489,7 @@ def make_intersection(name: str, env_config: dict | None = None, **overrides) ->
     cfg["observation"] = dict(OBSERVATION)
     cfg["action"] = {"type": "DiscreteMetaAction", "longitudinal": True, "lateral": False,
                      "target_speeds": list(TARGET_SPEEDS)}
-    given = dict(env_config or {})
-    given.update(overrides)
-    allowed = sorted(set(cfg) | set(OWN_KEYS) | RENDER_KEYS
-                     | {"other_vehicles_type", "manual_control", "neighbour_vehicles_connected_lanes"})
-    unknown = sorted(k for k in given if k not in allowed)
-    if unknown:
-        raise ValueError(f"{name}: unknown config key(s) {unknown}; allowed: {allowed}")
-    for key in RENDER_KEYS:
-        given.pop(key, None)
-    if given.pop("other_vehicles_type", IDM_CLASS) != IDM_CLASS:
-        raise ValueError(f"{name}: other_vehicles_type must be {IDM_CLASS!r} (the IDM drivers)")
-    if given.pop("manual_control", False):
-        raise ValueError(f"{name}: manual_control=True is not supported (there is no keyboard in JAX)")
-    if given.pop("neighbour_vehicles_connected_lanes", False):
-        raise ValueError(f"{name}: neighbour_vehicles_connected_lanes=True is not supported")
-    cfg.update(given)
+    cfg.update(config_given(name, cfg, OWN_KEYS, env_config, overrides, "allowed: False"))
 
     sim = _int(name, "simulation_frequency", cfg["simulation_frequency"], 2)
     pol = _int(name, "policy_frequency", cfg["policy_frequency"], 1, sim)

@@ -44,7 +44,7 @@ from envs_jax import lanes as L
 from envs_jax.continuous_traffic_env import ContinuousTrafficEnv
 from envs_jax.idm import IDMParams
 from envs_jax.scenarios.racetrack import build_road
-from envs_jax.scenarios.highway import RENDER_KEYS, IDM_CLASS, _int, _number, _unwrap
+from envs_jax.scenarios.highway import _int, _number, _unwrap, config_given
 from envs_jax.traffic_env import Task, TrafficParams
 
 NAME = "racetrack-v0"
@@ -249,22 +249,8 @@ def make_racetrack(name: str = NAME, env_config: dict | None = None, **overrides
     of its fields). Unknown keys or bad values raise ``ValueError`` naming them and what is allowed.
     """
     cfg = dict(DEFAULTS)
-    given = dict(env_config or {})
-    given.update(overrides)
-    allowed = sorted(set(cfg) | set(OWN_KEYS) | RENDER_KEYS
-                     | {"other_vehicles_type", "manual_control", "neighbour_vehicles_connected_lanes"})
-    unknown = sorted(k for k in given if k not in allowed)
-    if unknown:
-        raise ValueError(f"{name}: unknown config key(s) {unknown}; allowed: {allowed}")
-    for key in RENDER_KEYS:
-        given.pop(key, None)
-    if given.pop("other_vehicles_type", IDM_CLASS) != IDM_CLASS:
-        raise ValueError(f"{name}: other_vehicles_type must be {IDM_CLASS!r} (RacetrackEnv places IDMVehicle)")
-    if given.pop("manual_control", False):
-        raise ValueError(f"{name}: manual_control=True is not supported (there is no keyboard in JAX)")
-    if given.pop("neighbour_vehicles_connected_lanes", False):
-        raise ValueError(f"{name}: neighbour_vehicles_connected_lanes=True (racetrack-v1) is not supported; "
-                         f"racetrack-v0 searches neighbours on one lane segment (False)")
+    given = config_given(name, cfg, OWN_KEYS, env_config, overrides,
+                         "racetrack-v1 is not implemented; racetrack-v0 searches neighbours on one lane segment (False)")
     for key in INERT_KEYS:
         if key in given:
             _number(name, key, given.pop(key), positive=True)

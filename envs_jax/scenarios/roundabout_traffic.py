@@ -219,23 +219,7 @@ def make_roundabout(name: str = NAME, env_config: dict | None = None, **override
     cfg = dict(DEFAULTS)
     cfg["observation"] = DEFAULT_OBSERVATION
     cfg["action"] = DEFAULT_ACTION
-    given = dict(env_config or {})
-    given.update(overrides)
-    allowed = sorted(set(cfg) | set(OWN_KEYS) | H.RENDER_KEYS
-                     | {"other_vehicles_type", "manual_control", "neighbour_vehicles_connected_lanes"})
-    unknown = sorted(k for k in given if k not in allowed)
-    if unknown:
-        raise ValueError(f"{name}: unknown or non-applicable config key(s) {unknown}; allowed: {allowed}")
-    for key in H.RENDER_KEYS:
-        given.pop(key, None)
-    if given.pop("other_vehicles_type", H.IDM_CLASS) != H.IDM_CLASS:
-        raise ValueError(f"{name}: other_vehicles_type must be {H.IDM_CLASS!r} (the IDM/MOBIL drivers)")
-    if given.pop("manual_control", False):
-        raise ValueError(f"{name}: manual_control=True is not supported (there is no keyboard in JAX)")
-    if given.pop("neighbour_vehicles_connected_lanes", False):
-        raise ValueError(f"{name}: neighbour_vehicles_connected_lanes=True (roundabout-v1) is not supported; "
-                         f"allowed: False")
-    cfg.update(given)
+    cfg.update(H.config_given(name, cfg, OWN_KEYS, env_config, overrides, "roundabout-v1 is not implemented"))
 
     sim = H._int(name, "simulation_frequency", cfg["simulation_frequency"], 1)
     pol = H._int(name, "policy_frequency", cfg["policy_frequency"], 1, sim)
