@@ -207,7 +207,8 @@ def bench(name: str, steps: int, num_envs: int, batched_envs: int, repeats: int,
 
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--scenario", default="merge", choices=envs_jax.available_scenarios() + envs_jax.available_tasks())
+    parser.add_argument("--scenario", default="merge",
+                        choices=envs_jax.available_scenarios() + envs_jax.available_tasks())
     parser.add_argument("--controlled-vehicles", type=int, default=None, help="a traffic task's K (default: its own)")
     parser.add_argument("--steps", type=int, default=200)
     parser.add_argument("--num-envs", type=int, default=256, help="environments of the jitted scan pair")

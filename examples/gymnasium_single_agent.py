@@ -18,8 +18,10 @@ from envs_jax.views import GymnasiumDrivingEnv, GymnasiumVectorDrivingEnv, idle_
 
 def main(argv=None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--scenario", default="racetrack", choices=envs_jax.available_scenarios() + envs_jax.available_tasks())
-    parser.add_argument("--duration", type=float, default=None, help="episode length in seconds (default: the task's)")
+    parser.add_argument("--scenario", default="racetrack",
+                        choices=envs_jax.available_scenarios() + envs_jax.available_tasks())
+    parser.add_argument("--duration", type=float, default=None,
+                        help="episode length in seconds (default: the task's)")
     parser.add_argument("--agent", type=int, default=0)
     parser.add_argument("--num-envs", type=int, default=16)
     parser.add_argument("--vector-steps", type=int, default=20)

@@ -237,7 +237,8 @@ def make_train(config, env=None):
 
 def main(argv=None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--scenario", default="merge", choices=envs_jax.available_scenarios() + envs_jax.available_tasks())
+    parser.add_argument("--scenario", default="merge",
+                        choices=envs_jax.available_scenarios() + envs_jax.available_tasks())
     parser.add_argument("--timesteps", type=float, default=CONFIG["TOTAL_TIMESTEPS"])
     parser.add_argument("--num-envs", type=int, default=CONFIG["NUM_ENVS"])
     parser.add_argument("--num-steps", type=int, default=CONFIG["NUM_STEPS"])

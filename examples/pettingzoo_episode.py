@@ -16,8 +16,10 @@ from envs_jax.views import PettingZooDrivingEnv
 
 def main(argv=None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--scenario", default="merge", choices=envs_jax.available_scenarios() + envs_jax.available_tasks())
-    parser.add_argument("--duration", type=float, default=None, help="episode length in seconds (default: the task's)")
+    parser.add_argument("--scenario", default="merge",
+                        choices=envs_jax.available_scenarios() + envs_jax.available_tasks())
+    parser.add_argument("--duration", type=float, default=None,
+                        help="episode length in seconds (default: the task's)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--frame", default=None, help="save the last frame as this PNG")
     args = parser.parse_args(argv)

@@ -24,6 +24,13 @@ def test_pettingzoo_example_runs_an_episode(tmp_path):
     assert out["steps"] >= 1 and (tmp_path / "f.png").stat().st_size > 0
 
 
+def test_gymnasium_example_runs():
+    out = _example("gymnasium_single_agent").main(["--scenario", "racetrack", "--num-envs", "2",
+                                                   "--vector-steps", "2"])
+    assert out["steps"] >= 1
+
+
+@pytest.mark.slow  # compiles a traffic task's step alone and vmapped
 def test_gymnasium_example_runs_on_a_single_agent_task():
     out = _example("gymnasium_single_agent").main(["--scenario", "highway-fast-v0", "--duration", "3",
                                                    "--num-envs", "2", "--vector-steps", "2"])

@@ -316,5 +316,6 @@ def test_pettingzoo_bad_input_at_the_intersection():
     view = PettingZooDrivingEnv(core("intersection-multi-agent-v0"))
     view.reset(seed=0)
     assert view.action_space("agent_0").n == 3
-    _bad_actions(view, [({"agent_0": 1, "agent_1": 3}, "agent_1 must be an integer in 0..2 \\(0=SLOWER, 1=IDLE, 2=FASTER\\)"),
+    _bad_actions(view, [({"agent_0": 1, "agent_1": 3},
+                         "agent_1 must be an integer in 0..2 \\(0=SLOWER, 1=IDLE, 2=FASTER\\)"),
                         ({"agent_0": -1, "agent_1": 1}, "agent_0 must be an integer in 0..2")])

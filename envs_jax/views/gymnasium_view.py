@@ -14,18 +14,19 @@ one controlled vehicle) the view is that task, and no partner policy is needed:
 >>> env = GymnasiumDrivingEnv(envs_jax.make("highway-fast-v0"))   # observation_space Box (5, 5)
 
 Observations have one agent's shape as the env returns it (``(8,)``, ``(vehicles_count, F)``
-or ``(C, H, W)``). For a K-agent scenario it shows one agent (``agent``: index or ``"agent_i"``) while
-the other K - 1 are driven by ``partner_policy(key, obs_others) -> actions_others``, a jittable
-function of their observations ``[K - 1, *obs_shape]`` (``envs_jax.views.idle_policy(env)``, ``random_policy(env)``, or a
-trained policy); without one, a K > 1 env raises ``ValueError`` pointing at the multi-agent
-views (``PettingZooDrivingEnv``, ``JaxMARLDrivingEnv``), which control every agent.
+or ``(C, H, W)``). For a K-agent scenario or task it shows one agent (``agent``: index or
+``"agent_i"``) while the other K - 1 are driven by ``partner_policy(key, obs_others) ->
+actions_others``, a jittable function of their observations ``[K - 1, *obs_shape]``
+(``envs_jax.views.idle_policy(env)``, ``random_policy(env)``, or a trained policy); without
+one, a K > 1 env raises ``ValueError`` pointing at the multi-agent views
+(``PettingZooDrivingEnv``, ``JaxMARLDrivingEnv``), which control every agent.
 
 * ``terminated`` is the viewed agent's own termination (crash, arrival, off-road) and
   ``truncated`` the time limit; the episode ends for the view on either, even if partners
   still drive.
 * ``info``: ``cost`` and the agent's ``crashed`` / ``arrived`` / ``on_road`` flags, a task's
-  reward terms and the episode-wide flags (:func:`~envs_jax.views.spaces.agent_info`). With ``safe=True`` ``step`` returns Safety-Gymnasium's
-  ``(obs, reward, cost, terminated, truncated, info)``.
+  reward terms and the episode-wide flags (:func:`~envs_jax.views.spaces.agent_info`). With
+  ``safe=True`` ``step`` returns Safety-Gymnasium's ``(obs, reward, cost, terminated, truncated, info)``.
 * ``render_mode="rgb_array"``: ``render()`` draws the whole scene (every car) as an RGB frame;
   without a render mode it warns and returns None (Gymnasium's convention).
 
