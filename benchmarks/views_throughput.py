@@ -3,6 +3,7 @@
 ```
 python benchmarks/views_throughput.py --scenario merge --steps 200 --num-envs 1024 \
     --out benchmarks/results/views_throughput.json
+python benchmarks/views_throughput.py --scenario highway-fast-v0 --controlled-vehicles 2   # a traffic task
 ```
 
 Pairs, each measured after a warm-up call (compilation excluded):
@@ -12,7 +13,8 @@ Pairs, each measured after a warm-up call (compilation excluded):
   call plus the dict/numpy conversion and host copies); the difference per step is what the
   host views pay for transfers and conversion.
 * device, one jitted ``lax.scan`` over N vmapped environments: ``envs_jax.rollout``'s
-  ``AutoResetWrapper`` vs the JaxMARL view (in JaxMARL's ``LogWrapper``).
+  ``AutoResetWrapper`` (a traffic task: the simulator's step with the reset written out,
+  :func:`autoreset_step`) vs the JaxMARL view (in JaxMARL's ``LogWrapper``).
 * host, N environments per call: a jitted ``vmap`` of the simulator's auto-reset step called
   once per step with numpy actions and results copied back vs the batched PettingZoo view and
   the Gymnasium ``VectorEnv`` (same pattern, plus the views' bookkeeping).
@@ -34,8 +36,8 @@ import numpy as np
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), os.pardir))
 
 import envs_jax  # noqa: E402
-from envs_jax.views import (BatchedPettingZooDrivingEnv, GymnasiumDrivingEnv, GymnasiumVectorDrivingEnv,  # noqa: E402
-                            JaxMARLDrivingEnv, PettingZooDrivingEnv, idle_policy)
+from envs_jax.views import (AgentSpec, BatchedPettingZooDrivingEnv, GymnasiumDrivingEnv,  # noqa: E402
+                            GymnasiumVectorDrivingEnv, JaxMARLDrivingEnv, PettingZooDrivingEnv, idle_policy)
 
 
 def timed(fn, steps: int, repeats: int) -> float:
@@ -51,11 +53,48 @@ def timed(fn, steps: int, repeats: int) -> float:
 def host_actions(env, rng, shape=()):
     if env.discrete:
         return rng.integers(0, env.num_actions, shape + (env.num_agents,)).astype(np.int32)
-    return rng.uniform(-1, 1, shape + (env.num_agents, env.action_dim)).astype(np.float32)
+    return rng.uniform(-1, 1, shape + tuple(env.action_shape)).astype(np.float32)
 
 
-def bench(name: str, steps: int, num_envs: int, batched_envs: int, repeats: int) -> dict:
-    env = envs_jax.make(name)
+class TaskAutoReset:
+    """A traffic task's step with the auto-reset written out (JaxMARL's key split), the core side of the pairs;
+    the two-agent scenarios use ``envs_jax.AutoResetWrapper``."""
+
+    def __init__(self, env):
+        self.env = env
+
+    def reset(self, key):
+        return self.env.reset(key)
+
+    def step(self, key, state, action):
+        key_step, key_reset = jax.random.split(key)
+        obs, st, reward, cost, done, info = self.env.step(key_step, state, action)
+        obs_re, st_re = self.env.reset(key_reset)
+        st = jax.tree.map(lambda a, b: jnp.where(done, a, b), st_re, st)
+        return jnp.where(done, obs_re, obs), st, reward, cost, done, info
+
+
+def task_rollout(env, key, num_envs: int, num_steps: int):
+    """``envs_jax.rollout`` for a traffic task: a scan of uniform random actions over vmapped auto-resetting envs."""
+    wrapped, spec = TaskAutoReset(env), AgentSpec.of(env)
+    _, st = jax.vmap(wrapped.reset)(jax.random.split(key, num_envs))
+
+    def body(st, key):
+        k_act, k_step = jax.random.split(key)
+        if spec.discrete:
+            action = jax.random.randint(k_act, (num_envs, spec.num_agents), 0, spec.num_actions)
+        else:
+            action = jax.random.uniform(k_act, (num_envs, spec.num_agents, spec.action_dim), minval=-1.0, maxval=1.0)
+        _, st, reward, *_ = jax.vmap(wrapped.step)(jax.random.split(k_step, num_envs), st, action)
+        return st, reward[:, 0]
+
+    return jax.lax.scan(body, st, jax.random.split(jax.random.fold_in(key, 1), num_steps))[1]
+
+
+def bench(name: str, steps: int, num_envs: int, batched_envs: int, repeats: int, overrides: dict | None = None) -> dict:
+    env = envs_jax.make(name, **(overrides or {}))
+    task = name in envs_jax.available_tasks()
+    partner = idle_policy(env) if env.num_agents > 1 else None
     rng = np.random.default_rng(0)
     res = {}
 
@@ -82,7 +121,7 @@ def bench(name: str, steps: int, num_envs: int, batched_envs: int, repeats: int)
                 pz.reset()
             pz.step({ag: (int(a[i]) if env.discrete else a[i]) for i, ag in enumerate(agents) if ag in pz.agents})
 
-    gym = GymnasiumDrivingEnv(env, partner_policy=idle_policy(env))
+    gym = GymnasiumDrivingEnv(env, partner_policy=partner)
 
     def gymnasium_env():
         gym.reset(seed=0)
@@ -101,7 +140,7 @@ def bench(name: str, steps: int, num_envs: int, batched_envs: int, repeats: int)
             "us_per_step"]
 
     # ---- device, one jitted scan over N vmapped environments
-    core_rollout = jax.jit(envs_jax.rollout, static_argnums=(0, 2, 3))
+    core_rollout = jax.jit(task_rollout if task else envs_jax.rollout, static_argnums=(0, 2, 3))
     view = JaxMARLDrivingEnv(env)
     from jaxmarl.wrappers.baselines import LogWrapper
 
@@ -130,7 +169,7 @@ def bench(name: str, steps: int, num_envs: int, batched_envs: int, repeats: int)
         res[label] = {"steps_per_s": steps * num_envs / sec, "num_envs": num_envs, "scan_steps": steps}
 
     # ---- host, N environments per call
-    wrapped = envs_jax.AutoResetWrapper(env)
+    wrapped = TaskAutoReset(env) if task else envs_jax.AutoResetWrapper(env)
     vstep = jax.jit(jax.vmap(wrapped.step))
     n = batched_envs
     bacts = [host_actions(env, rng, (n,)) for _ in range(min(steps, 50))]
@@ -142,7 +181,7 @@ def bench(name: str, steps: int, num_envs: int, batched_envs: int, repeats: int)
         for a in bacts:
             key, k = jax.random.split(key)
             obs, st, r, c, done, info = vstep(jax.random.split(k, n), st, jnp.asarray(a))
-            jax.device_get((obs, r, c, done, info["terminated"], info["truncated"]))
+            jax.device_get((obs, r, c, done, info["terminated"], info["truncated"]))  # what a host loop reads
 
     bpz = BatchedPettingZooDrivingEnv(env, n)
 
@@ -151,7 +190,7 @@ def bench(name: str, steps: int, num_envs: int, batched_envs: int, repeats: int)
         for a in bacts:
             bpz.step({ag: a[:, i] for i, ag in enumerate(agents)})
 
-    vec = GymnasiumVectorDrivingEnv(env, n, partner_policy=idle_policy(env))
+    vec = GymnasiumVectorDrivingEnv(env, n, partner_policy=partner)
 
     def gymnasium_vector():
         vec.reset(seed=0)
@@ -168,14 +207,17 @@ def bench(name: str, steps: int, num_envs: int, batched_envs: int, repeats: int)
 
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--scenario", default="merge", choices=envs_jax.available_scenarios())
+    parser.add_argument("--scenario", default="merge",
+                        choices=envs_jax.available_scenarios() + envs_jax.available_tasks())
+    parser.add_argument("--controlled-vehicles", type=int, default=None, help="a traffic task's K (default: its own)")
     parser.add_argument("--steps", type=int, default=200)
     parser.add_argument("--num-envs", type=int, default=256, help="environments of the jitted scan pair")
     parser.add_argument("--batched-envs", type=int, default=1024, help="environments of the batched host views")
     parser.add_argument("--repeats", type=int, default=2)
     parser.add_argument("--out", default=None)
     args = parser.parse_args(argv)
-    res = bench(args.scenario, args.steps, args.num_envs, args.batched_envs, args.repeats)
+    overrides = {} if args.controlled_vehicles is None else {"controlled_vehicles": args.controlled_vehicles}
+    res = bench(args.scenario, args.steps, args.num_envs, args.batched_envs, args.repeats, overrides)
     for label, r in res.items():
         extra = (f"  (+{r['host_overhead_us_per_step_vs_core_eager']:.0f} us/step vs core eager)"
                  if "host_overhead_us_per_step_vs_core_eager" in r else "")

@@ -2,6 +2,7 @@
 
 ```
 python examples/gymnasium_single_agent.py --scenario racetrack --num-envs 64
+python examples/gymnasium_single_agent.py --scenario highway-fast-v0      # a single-agent task: no partner
 ```
 """
 
@@ -17,13 +18,16 @@ from envs_jax.views import GymnasiumDrivingEnv, GymnasiumVectorDrivingEnv, idle_
 
 def main(argv=None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--scenario", default="racetrack", choices=envs_jax.available_scenarios())
+    parser.add_argument("--scenario", default="racetrack",
+                        choices=envs_jax.available_scenarios() + envs_jax.available_tasks())
+    parser.add_argument("--duration", type=float, default=None,
+                        help="episode length in seconds (default: the task's)")
     parser.add_argument("--agent", type=int, default=0)
     parser.add_argument("--num-envs", type=int, default=16)
     parser.add_argument("--vector-steps", type=int, default=20)
     args = parser.parse_args(argv)
-    base = envs_jax.make(args.scenario)
-    partner = idle_policy(base)  # not needed for a single-agent task (num_agents == 1)
+    base = envs_jax.make(args.scenario, **({} if args.duration is None else {"duration": args.duration}))
+    partner = idle_policy(base) if base.num_agents > 1 else None  # a single-agent task needs none
     env = GymnasiumDrivingEnv(base, agent=args.agent, partner_policy=partner, safe=True)
     obs, info = env.reset(seed=0)
     env.action_space.seed(0)

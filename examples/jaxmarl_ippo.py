@@ -138,7 +138,8 @@ def make_train(config, env=None):
     def train(rng):
         network = ActorCritic(action_dim, discrete=discrete, activation=config["ACTIVATION"])
         rng, _rng = jax.random.split(rng)
-        params = network.init(_rng, jnp.zeros(env.observation_space(env.agents[0]).shape))
+        # batchify flattens each agent's observation ([5, 5] Kinematics, [2, 12, 12] grids) for the MLP
+        params = network.init(_rng, jnp.zeros(int(np.prod(env.observation_space(env.agents[0]).shape))))
         lr = linear_schedule if config["ANNEAL_LR"] else config["LR"]
         tx = optax.chain(optax.clip_by_global_norm(config["MAX_GRAD_NORM"]), optax.adam(lr, eps=1e-5))
         train_state = TrainState.create(apply_fn=network.apply, params=params, tx=tx)
@@ -236,7 +237,8 @@ def make_train(config, env=None):
 
 def main(argv=None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--scenario", default="merge", choices=envs_jax.available_scenarios())
+    parser.add_argument("--scenario", default="merge",
+                        choices=envs_jax.available_scenarios() + envs_jax.available_tasks())
     parser.add_argument("--timesteps", type=float, default=CONFIG["TOTAL_TIMESTEPS"])
     parser.add_argument("--num-envs", type=int, default=CONFIG["NUM_ENVS"])
     parser.add_argument("--num-steps", type=int, default=CONFIG["NUM_STEPS"])

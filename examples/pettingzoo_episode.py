@@ -2,6 +2,7 @@
 
 ```
 python examples/pettingzoo_episode.py --scenario roundabout --frame frame.png
+python examples/pettingzoo_episode.py --scenario intersection-multi-agent-v0 --frame frame.png   # a traffic task
 ```
 """
 
@@ -15,11 +16,15 @@ from envs_jax.views import PettingZooDrivingEnv
 
 def main(argv=None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--scenario", default="merge", choices=envs_jax.available_scenarios())
+    parser.add_argument("--scenario", default="merge",
+                        choices=envs_jax.available_scenarios() + envs_jax.available_tasks())
+    parser.add_argument("--duration", type=float, default=None,
+                        help="episode length in seconds (default: the task's)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--frame", default=None, help="save the last frame as this PNG")
     args = parser.parse_args(argv)
-    env = PettingZooDrivingEnv(envs_jax.make(args.scenario), render_mode="rgb_array", safe=True)
+    overrides = {} if args.duration is None else {"duration": args.duration}
+    env = PettingZooDrivingEnv(envs_jax.make(args.scenario, **overrides), render_mode="rgb_array", safe=True)
     observations, infos = env.reset(seed=args.seed)
     for agent in env.possible_agents:
         env.action_space(agent).seed(args.seed)

@@ -28,3 +28,10 @@ def test_gymnasium_example_runs():
     out = _example("gymnasium_single_agent").main(["--scenario", "racetrack", "--num-envs", "2",
                                                    "--vector-steps", "2"])
     assert out["steps"] >= 1
+
+
+@pytest.mark.slow  # compiles a traffic task's step alone and vmapped
+def test_gymnasium_example_runs_on_a_single_agent_task():
+    out = _example("gymnasium_single_agent").main(["--scenario", "highway-fast-v0", "--duration", "3",
+                                                   "--num-envs", "2", "--vector-steps", "2"])
+    assert 1 <= out["steps"] <= 3  # 3 s at one decision per second (fewer if the car crashed)

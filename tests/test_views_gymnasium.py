@@ -1,4 +1,5 @@
-"""Gymnasium views: ``check_env`` on every scenario, agreement with the simulator, the vector env, bad input."""
+"""Gymnasium views: ``check_env`` on every scenario and on single-agent traffic tasks, agreement with the
+simulator, the vector env, bad input."""
 
 from __future__ import annotations
 
@@ -26,9 +27,18 @@ def _make(name: str, **overrides):
     return envs_jax.make(name, **overrides)
 
 
+# traffic tasks, by test id: few vehicles and short episodes (one controlled vehicle unless K2)
+TASKS = {"highway-fast-v0": ("highway-fast-v0", (("vehicles_count", 3), ("duration", 4))),
+         "highway-fast-v0-K2": ("highway-fast-v0",
+                                (("controlled_vehicles", 2), ("vehicles_count", 3), ("duration", 4))),
+         "racetrack-v0": ("racetrack-v0", (("other_vehicles", 1), ("duration", 3)))}
+
+
 def core(name: str, deterministic: bool = False):
-    """One simulator per scenario (intersection's random start offsets off where runs with different
+    """One simulator per scenario or task (intersection's random start offsets off where runs with different
     reset keys are compared); views on it share its compiled functions."""
+    if name in TASKS:
+        return _make(TASKS[name][0], **dict(TASKS[name][1]))
     return _make(name, **({"start_noise": 0.0} if deterministic and name == "intersection" else {}))
 
 
@@ -156,3 +166,103 @@ def test_vector_env_equals_single_views(name, mode):
         assert episodes >= n
     with pytest.raises(ValueError, match="shape \\(3,"):
         vec.step(np.zeros((2,) + vec.single_action_space.shape, vec.single_action_space.dtype))
+
+
+SLOW = pytest.mark.slow  # a further compilation of the simulator
+
+
+@pytest.mark.parametrize("name", ["highway-fast-v0", pytest.param("racetrack-v0", marks=SLOW)])
+def test_check_env_passes_on_single_agent_tasks(name):
+    """A K = 1 task is a plain gymnasium.Env (no partner policy): [5, 5] Kinematics, [2, 12, 12] occupancy grid."""
+    env = core(name)
+    view = GymnasiumDrivingEnv(env, render_mode="rgb_array")
+    assert view.observation_space.shape == tuple(env.obs_shape[1:])
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        check_env(view)
+    unexpected = [str(w.message) for w in caught if not any(s in str(w.message) for s in EXPECTED_WARNINGS)]
+    assert not unexpected
+    assert np.all(np.isfinite(view.observation_space.low)) == (name == "racetrack-v0")  # highway-env's bounds
+    frame = view.render()
+    assert frame.dtype == np.uint8 and frame.shape[2] == 3
+    assert GymnasiumDrivingEnv(env).render() is None  # no render_mode: Gymnasium's warning and None
+
+
+@pytest.mark.parametrize("name", ["highway-fast-v0", pytest.param("racetrack-v0", marks=SLOW)])
+def test_single_agent_task_view_is_the_task(name):
+    """Each transition equals the simulator's own step with the view's key, until the episode ends."""
+    env = core(name)
+    view = GymnasiumDrivingEnv(env, safe=True)
+    obs, _ = view.reset(seed=2)
+    state = view._state
+    view.action_space.seed(0)
+    for _ in range(100):
+        key_step = jax.random.split(view._key)[1]  # the key the view's next step uses
+        action = view.action_space.sample()
+        o2, state, r2, c2, _, info2 = env.step(jax.random.split(key_step)[1], state, np.asarray(action)[None])
+        obs, reward, cost, terminated, truncated, info = view.step(action)
+        np.testing.assert_array_equal(obs, np.asarray(o2)[0])
+        assert reward == pytest.approx(float(r2[0])) and cost == info["cost"] == pytest.approx(float(c2[0]))
+        assert terminated == bool(info2["terminated"][0]) and truncated == bool(info2["truncated"])
+        if terminated or truncated:
+            break
+    assert terminated or truncated
+    with pytest.raises(gymnasium.error.ResetNeeded):
+        view.step(action)
+
+
+@SLOW
+def test_task_with_two_agents_needs_a_partner_and_passes_check_env_with_one():
+    env = core("highway-fast-v0-K2")
+    with pytest.raises(ValueError, match="2 agents.*partner_policy"):
+        GymnasiumDrivingEnv(env)
+    partner = random_policy(env)  # gets the other agent's [1, 5, 5] observations
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        check_env(GymnasiumDrivingEnv(env, agent=1, partner_policy=partner))
+    assert not [str(w.message) for w in caught if not any(s in str(w.message) for s in EXPECTED_WARNINGS)]
+
+
+def test_gymnasium_bad_input_on_a_task():
+    view = GymnasiumDrivingEnv(core("highway-fast-v0"))
+    with pytest.raises(gymnasium.error.ResetNeeded):
+        view.step(1)
+    view.reset(seed=0)
+    for action, match in [(5, "in 0..4"), (1.0, "dtype float"), (np.array([1]), "shape"), (None, "must be an integer")]:
+        with pytest.raises(gymnasium.error.InvalidAction, match=match):
+            view.step(action)
+    with pytest.raises(ValueError, match="agent must be an index in 0..0"):
+        GymnasiumDrivingEnv(core("highway-fast-v0"), agent=1)
+
+
+@SLOW
+def test_vector_env_on_a_task_steps_like_the_simulator():
+    """same_step auto-reset of N single-agent highway environments against the simulator's own step and reset."""
+    env = core("highway-fast-v0")
+    n = 3
+    vec = GymnasiumVectorDrivingEnv(env, n, autoreset_mode="same_step", safe=True)
+    assert vec.single_observation_space.shape == (5, 5) and vec.observation_space.shape == (n, 5, 5)
+    obs, _ = vec.reset(seed=0)
+    vec.action_space.seed(0)
+    episodes = 0
+    for _ in range(9):
+        states, key = jax.device_get(vec._states), vec._key
+        actions = vec.action_space.sample()
+        obs, rewards, costs, terms, truncs, infos = vec.step(actions)
+        keys = jax.random.split(jax.random.split(key)[1], n)  # the view's key for each environment
+        for e in range(n):
+            key_step, key_reset = jax.random.split(keys[e])
+            o, _, r, c, _, info = env.step(jax.random.split(key_step)[1], jax.tree.map(lambda x, e=e: x[e], states),
+                                           np.asarray(actions[e])[None])
+            assert rewards[e] == pytest.approx(float(r[0]), abs=1e-4)
+            assert costs[e] == pytest.approx(float(c[0]), abs=1e-4)
+            assert (terms[e], truncs[e]) == (bool(info["terminated"][0]), bool(info["truncated"]))
+            assert infos["_cost"][e] and set(infos["rewards"]) >= {"collision_reward", "_collision_reward"}
+            if terms[e] or truncs[e]:
+                episodes += 1
+                assert infos["_final_obs"][e]
+                np.testing.assert_allclose(infos["final_obs"][e], o[0], rtol=1e-4, atol=1e-3)
+                np.testing.assert_allclose(obs[e], env.reset(key_reset)[0][0], rtol=1e-4, atol=1e-3)
+            else:
+                np.testing.assert_allclose(obs[e], o[0], rtol=1e-4, atol=1e-3)
+    assert episodes >= n  # 4 s episodes

@@ -1,4 +1,5 @@
-"""PettingZoo views: PettingZoo's own API and seed tests, agreement with the simulator, batching, bad input."""
+"""PettingZoo views: PettingZoo's own API and seed tests, agreement with the simulator, batching, bad input,
+on the two-agent scenarios and on the traffic tasks."""
 
 from __future__ import annotations
 
@@ -21,9 +22,18 @@ SCENARIOS = ["merge", "roundabout", "intersection", "racetrack"]
 OVERRIDES = {"merge": {}, "roundabout": {}, "intersection": {"start_noise": 0.0}, "racetrack": {"duration": 6.0}}
 
 
+# traffic tasks, by test id: few vehicles and short episodes, so that tests compile little and see episode ends
+TASKS = {"highway-fast-v0-K1": ("highway-fast-v0", {"vehicles_count": 3, "duration": 4}),
+         "highway-fast-v0-K2": ("highway-fast-v0", {"controlled_vehicles": 2, "vehicles_count": 3, "duration": 4}),
+         "racetrack-v0": ("racetrack-v0", {"other_vehicles": 1, "duration": 3}),
+         "intersection-multi-agent-v0": ("intersection-multi-agent-v0", {"initial_vehicle_count": 3})}
+
+
 @functools.lru_cache(maxsize=None)
 def core(name: str, deterministic: bool = False):
-    """One simulator per scenario for the whole module (views built on it share its compiled step)."""
+    """One simulator per scenario or task for the whole module (views built on it share its compiled step)."""
+    if name in TASKS:
+        return envs_jax.make(TASKS[name][0], **TASKS[name][1])
     return envs_jax.make(name, **(OVERRIDES[name] if deterministic else {}))
 
 
@@ -43,7 +53,37 @@ def test_pettingzoo_api_and_seed_tests_pass(name):
         parallel_seed_test(lambda: PettingZooDrivingEnv(env))
 
 
-@pytest.mark.parametrize("name", SCENARIOS)
+SLOW = pytest.mark.slow  # a further compilation of the simulator (intersection's alone costs more than the rest)
+
+
+@pytest.mark.parametrize("name", ["highway-fast-v0-K2", "racetrack-v0", pytest.param("highway-fast-v0-K1", marks=SLOW),
+                                  pytest.param("intersection-multi-agent-v0", marks=SLOW)])
+def test_pettingzoo_checkers_pass_on_traffic_tasks(name):
+    """PettingZoo's own checkers on Kinematics ([n, F]) and occupancy-grid ([C, H, W]) tasks, K = 1 and K = 2;
+    the spaces have the env's per-agent shape, the state is every observation flattened, frames draw the cars."""
+    env = core(name)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        parallel_api_test(PettingZooDrivingEnv(env), num_cycles=40)
+        parallel_seed_test(lambda: PettingZooDrivingEnv(env))
+    view = PettingZooDrivingEnv(env, render_mode="rgb_array")
+    obs, _ = view.reset(seed=0)
+    k = env.num_agents
+    assert view.possible_agents == [f"agent_{i}" for i in range(k)]
+    for a in view.possible_agents:
+        assert view.observation_space(a).shape == tuple(env.obs_shape[1:]) == obs[a].shape
+    bounded = name == "racetrack-v0"  # highway-env's OccupancyGrid space is [-1, 1]; Kinematics' is unbounded
+    assert np.all(np.isfinite(view.observation_space("agent_0").low)) == bounded
+    assert view.state().shape == view.state_space.shape == (k * int(np.prod(env.obs_shape[1:])),)
+    np.testing.assert_array_equal(view.state(), np.concatenate([obs[a].reshape(-1) for a in view.possible_agents]))
+    frame = view.render()
+    assert frame.dtype == np.uint8 and frame.ndim == 3 and frame.shape[2] == 3
+    green = np.all(frame == np.array([50, 200, 0], np.uint8), axis=-1)  # controlled cars: highway-env's EGO_COLOR
+    assert green.sum() > 10
+
+
+@pytest.mark.parametrize("name", SCENARIOS + ["highway-fast-v0-K2", pytest.param("intersection-multi-agent-v0",
+                                                                                  marks=SLOW)])
 def test_pettingzoo_episode_matches_the_simulator(name):
     """Every step equals the simulator's with the same actions; finished agents drive IDLE / zero."""
     env = core(name)
@@ -53,7 +93,8 @@ def test_pettingzoo_episode_matches_the_simulator(name):
     # the same episode in the simulator: the view draws its reset key from the seeded generator
     key = view._key
     state = view._state
-    np.testing.assert_array_equal(np.stack([obs[a] for a in view.possible_agents]), np.asarray(env.observe(state)))
+    if name in SCENARIOS:  # (a task's observation recomputed eagerly would cost a compilation per operation)
+        np.testing.assert_array_equal(np.stack([obs[a] for a in view.possible_agents]), np.asarray(env.observe(state)))
     finished_seen = False
     while view.agents:
         live = list(view.agents)
@@ -176,7 +217,7 @@ def test_batched_pettingzoo_equals_independent_views(name):
             else:
                 obs_s[k] = {**obs_s[k], **obs_k}
     assert resets >= n  # every environment finished at least one episode
-    assert batched.state().shape == (n, len(agents) * batched.spec.obs_dim)
+    assert batched.state().shape == (n, len(agents) * batched.spec.obs_size)
 
 
 def test_batched_pettingzoo_bad_input():
@@ -193,3 +234,88 @@ def test_batched_pettingzoo_bad_input():
             batched.step(actions)
     with pytest.raises(ValueError, match="num_envs"):
         BatchedPettingZooDrivingEnv(env, 0)
+
+
+@SLOW
+def test_batched_pettingzoo_on_a_traffic_task_steps_like_the_simulator():
+    """Each of N batched highway environments (K = 2) steps as the simulator does from the same state with the
+    same key: live agents' actions, finished agents driven IDLE with zero reward, reset once all finished."""
+    env = core("highway-fast-v0-K2")
+    n, k = 3, env.num_agents
+    batched = BatchedPettingZooDrivingEnv(env, n, safe=True)
+    agents = batched.possible_agents
+    obs, _ = batched.reset(seed=0)
+    rng = np.random.default_rng(0)
+    active = np.ones((n, k), bool)
+    resets = 0
+    for _ in range(10):
+        states, key = jax.device_get(batched._states), batched._key
+        actions = {a: rng.integers(0, 5, n) for a in agents}
+        obs, rewards, costs, terms, truncs, infos = batched.step(actions)
+        keys = jax.random.split(jax.random.split(key)[1], n)  # the view's key for each environment
+        for e in range(n):
+            key_step, key_reset = jax.random.split(keys[e])
+            full = np.array([actions[a][e] if active[e, i] else 1 for i, a in enumerate(agents)], np.int32)
+            o, _, r, c, _, info = env.step(key_step, jax.tree.map(lambda x, e=e: x[e], states), full)
+            for i, a in enumerate(agents):
+                assert bool(infos[a]["active"][e]) == active[e, i]
+                if active[e, i]:
+                    assert rewards[a][e] == pytest.approx(float(r[i]), abs=1e-4)
+                    assert costs[a][e] == infos[a]["cost"][e] == pytest.approx(float(c[i]), abs=1e-4)
+                    assert terms[a][e] == bool(info["terminated"][i]) and truncs[a][e] == bool(info["truncated"])
+                    np.testing.assert_allclose(infos[a]["final_obs"][e], o[i], rtol=1e-4, atol=1e-3)
+                else:
+                    assert rewards[a][e] == 0.0 and costs[a][e] == 0.0
+            still = active[e] & ~(np.asarray(info["terminated"]) | bool(info["truncated"]))
+            assert bool(infos[agents[0]]["episode_over"][e]) == (not still.any())
+            if still.any():
+                active[e] = still
+                expected = o
+            else:
+                active[e] = True
+                resets += 1
+                expected = env.reset(key_reset)[0]
+            for i, a in enumerate(agents):
+                np.testing.assert_allclose(obs[a][e], expected[i], rtol=1e-4, atol=1e-3)
+    assert resets >= n  # 4 s episodes: every environment reset at least once
+    assert batched.state().shape == (n, k * 25)
+    assert set(infos["agent_0"]["rewards"]) >= {"collision_reward", "high_speed_reward"}  # reward terms, [N] each
+
+
+def _bad_actions(view, cases):
+    for actions, match in cases:
+        with pytest.raises(InvalidAction, match=match):
+            view.step(actions)
+
+
+def test_pettingzoo_bad_input_on_traffic_tasks():
+    """Highway's five meta-actions and racetrack's steering-only action are what the views accept."""
+    view = PettingZooDrivingEnv(core("highway-fast-v0-K2"))
+    with pytest.raises(ResetNeeded, match="reset"):
+        view.step({"agent_0": 1, "agent_1": 1})
+    view.reset(seed=0)
+    _bad_actions(view, [({"agent_0": 1, "agent_1": 5}, "agent_1 must be an integer in 0..4 .*4=SLOWER"),
+                        ({"agent_0": 1}, "no action for live agent.*agent_1"),
+                        ({"agent_0": 1, "agent_1": 1, "agent_2": 1}, "unknown agent.*agent_2"),
+                        ({"agent_0": np.array([1, 1]), "agent_1": 1}, "shape"),
+                        ({"agent_0": 1.0, "agent_1": 1}, "dtype float")])
+    race = PettingZooDrivingEnv(core("racetrack-v0"))
+    race.reset(seed=0)
+    assert race.action_space("agent_0").shape == (1,)
+    for actions, match in [({"agent_0": np.zeros(2, np.float32)}, "shape \\(1,\\)"),
+                           ({"agent_0": np.array([np.nan], np.float32)}, "finite"),
+                           ({"agent_0": 1}, "dtype int"),
+                           ({"agent_0": np.zeros(1, np.float32), "agent_1": np.zeros(1, np.float32)}, "unknown agent")]:
+        with pytest.raises(InvalidAction, match=match):
+            race.step(actions)
+
+
+@SLOW
+def test_pettingzoo_bad_input_at_the_intersection():
+    """The intersection's three meta-actions (lateral=False) are named in the error."""
+    view = PettingZooDrivingEnv(core("intersection-multi-agent-v0"))
+    view.reset(seed=0)
+    assert view.action_space("agent_0").n == 3
+    _bad_actions(view, [({"agent_0": 1, "agent_1": 3},
+                         "agent_1 must be an integer in 0..2 \\(0=SLOWER, 1=IDLE, 2=FASTER\\)"),
+                        ({"agent_0": -1, "agent_1": 1}, "agent_0 must be an integer in 0..2")])

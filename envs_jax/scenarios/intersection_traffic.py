@@ -329,6 +329,8 @@ class IntersectionTraffic(Task):
 class IntersectionTrafficEnv(TrafficEnv):
     """:class:`TrafficEnv` with the regulated road, the spawns and the clears of the intersection."""
 
+    action_names = ACTIONS  # DiscreteMetaAction(lateral=False): index -> meta-action
+
     def __init__(self, task: IntersectionTraffic, default_params):
         super().__init__(task, default_params)
         self.num_actions = len(ACTIONS)

@@ -1,7 +1,8 @@
-"""Views of every scenario for the frameworks safe-MARL users already run (see docs/frameworks.md).
+"""Views of every scenario and traffic task for the frameworks safe-MARL users already run (docs/frameworks.md).
 
 Each view is a thin adapter over the one pure simulator (``envs_jax.make(name)``), not a second
-simulator, and reads the number of agents and the action kind from the env:
+simulator, and reads the number of agents, one agent's observation shape and the action kind
+from the env:
 
 * :class:`JaxMARLDrivingEnv` (``jaxmarl_view``): a JaxMARL ``MultiAgentEnv``; jittable, vmappable.
 * :class:`PettingZooDrivingEnv` (``pettingzoo_view``): a host-side PettingZoo ``ParallelEnv``.

@@ -4,7 +4,7 @@
 >>> from envs_jax.views import GymnasiumVectorDrivingEnv, idle_policy
 >>> base = envs_jax.make("intersection")
 >>> envs = GymnasiumVectorDrivingEnv(base, num_envs=64, partner_policy=idle_policy(base))
->>> obs, infos = envs.reset(seed=0)                             # [64, obs_dim]
+>>> obs, infos = envs.reset(seed=0)                             # [64, *obs_shape]
 >>> obs, rewards, terminations, truncations, infos = envs.step(envs.action_space.sample())
 
 Backed by the vmapped simulator: every ``step`` is one jitted call for all environments
@@ -40,9 +40,19 @@ from gymnasium.vector.utils import batch_space
 from envs_jax.views import spaces as S
 from envs_jax.views.gymnasium_view import (InvalidAction, ResetNeeded, agent_index, require_partner,
                                            single_agent_step)
-from envs_jax.views.spaces import AgentSpec, host_key, split_info
+from envs_jax.views.spaces import AgentSpec, agent_info, host_key
 
 _MODES = {"next_step": AutoresetMode.NEXT_STEP, "same_step": AutoresetMode.SAME_STEP}
+
+
+def batched_info(values: dict, mask: np.ndarray) -> dict:
+    """Gymnasium's vector info layout: each ``[N]`` value under its key with the mask under ``"_key"``
+    (a nested dict gets the same layout inside, and its own mask)."""
+    out = {}
+    for key, value in values.items():
+        out[key] = batched_info(value, mask) if isinstance(value, dict) else np.asarray(value).copy()
+        out[f"_{key}"] = mask.copy()
+    return out
 
 
 class GymnasiumVectorDrivingEnv(gymnasium.vector.VectorEnv):
@@ -50,7 +60,7 @@ class GymnasiumVectorDrivingEnv(gymnasium.vector.VectorEnv):
 
     def __init__(self, env, num_envs: int, params=None, *, agent=0, partner_policy: Callable | None = None,
                  autoreset_mode="next_step", safe: bool = False):
-        self.spec_ = AgentSpec.of(env)
+        self.spec_ = AgentSpec.of(env, env.default_params if params is None else params)
         require_partner(self.spec_, partner_policy)
         if not isinstance(num_envs, (int, np.integer)) or isinstance(num_envs, bool) or num_envs < 1:
             raise ValueError(f"num_envs must be a positive integer, got {num_envs!r}")
@@ -90,8 +100,7 @@ class GymnasiumVectorDrivingEnv(gymnasium.vector.VectorEnv):
             obs_re, st_re = env.reset(key_reset, params)
             term, trunc = info["terminated"][i], info["truncated"]
             out = dict(obs=obs[i], reward=reward[i], cost=cost[i], terminated=term, truncated=trunc)
-            flags = {k: (v[i] if jnp.ndim(v) >= 1 and jnp.shape(v)[0] == self.spec_.num_agents else v)
-                     for k, v in info.items()}
+            flags = jax.tree.map(lambda v: v[i], agent_info(info, self.spec_.num_agents))
             if same_step:
                 end = term | trunc
                 new_state = jax.tree.map(lambda a, b: jnp.where(end, a, b), st_re, st)
@@ -141,19 +150,13 @@ class GymnasiumVectorDrivingEnv(gymnasium.vector.VectorEnv):
         reset_now = self._ended  # next_step: these environments were reset by this call
         self._ended = np.asarray(out["ended"], bool)
         stepped = ~reset_now if self.autoreset_mode == AutoresetMode.NEXT_STEP else np.ones(self.num_envs, bool)
-        infos = {}
-        for key_, value in {"cost": out["cost"], **flags}.items():
-            infos[key_] = np.asarray(value)
-            infos[f"_{key_}"] = stepped.copy()
+        values = {"cost": out["cost"], **flags}
+        infos = batched_info(values, stepped)
         if self.autoreset_mode == AutoresetMode.SAME_STEP and self._ended.any():
             final_obs = np.full(self.num_envs, None, dtype=object)
             for n in np.flatnonzero(self._ended):
                 final_obs[n] = np.asarray(out["final_obs"][n], self.spec_.obs_dtype)
-            final_info = {}
-            for key_, value in infos.items():
-                if not key_.startswith("_"):
-                    final_info[key_] = value.copy()
-                    final_info[f"_{key_}"] = self._ended.copy()
+            final_info = batched_info(values, self._ended)
             infos.update(final_obs=final_obs, _final_obs=self._ended.copy(), final_info=final_info,
                          _final_info=self._ended.copy())
         obs = np.asarray(out["obs"], self.spec_.obs_dtype)

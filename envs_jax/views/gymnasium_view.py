@@ -8,20 +8,27 @@
 >>> obs, reward, terminated, truncated, info = env.step(env.action_space.sample())
 >>> info["cost"]
 
-For a single-agent task (``env.num_agents == 1``) the view is that task, and no partner policy
-is needed. For a K-agent scenario it shows one agent (``agent``: index or ``"agent_i"``) while
-the other K - 1 are driven by ``partner_policy(key, obs_others) -> actions_others``, a jittable
-function of their observations (``envs_jax.views.idle_policy(env)``, ``random_policy(env)``, or a
-trained policy); without one, a K > 1 env raises ``ValueError`` pointing at the multi-agent
-views (``PettingZooDrivingEnv``, ``JaxMARLDrivingEnv``), which control every agent.
+For a single-agent task (``env.num_agents == 1``: ``highway-v0``, ``racetrack-v0``, ... with
+one controlled vehicle) the view is that task, and no partner policy is needed:
+
+>>> env = GymnasiumDrivingEnv(envs_jax.make("highway-fast-v0"))   # observation_space Box (5, 5)
+
+Observations have one agent's shape as the env returns it (``(8,)``, ``(vehicles_count, F)``
+or ``(C, H, W)``). For a K-agent scenario or task it shows one agent (``agent``: index or
+``"agent_i"``) while the other K - 1 are driven by ``partner_policy(key, obs_others) ->
+actions_others``, a jittable function of their observations ``[K - 1, *obs_shape]``
+(``envs_jax.views.idle_policy(env)``, ``random_policy(env)``, or a trained policy); without
+one, a K > 1 env raises ``ValueError`` pointing at the multi-agent views
+(``PettingZooDrivingEnv``, ``JaxMARLDrivingEnv``), which control every agent.
 
 * ``terminated`` is the viewed agent's own termination (crash, arrival, off-road) and
   ``truncated`` the time limit; the episode ends for the view on either, even if partners
   still drive.
-* ``info``: ``cost`` and the agent's ``crashed`` / ``arrived`` / ``on_road`` flags plus the
-  scenario's episode-wide ones. With ``safe=True`` ``step`` returns Safety-Gymnasium's
-  ``(obs, reward, cost, terminated, truncated, info)``.
-* ``render_mode="rgb_array"``: ``render()`` draws the whole scene (every car) as an RGB frame.
+* ``info``: ``cost`` and the agent's ``crashed`` / ``arrived`` / ``on_road`` flags, a task's
+  reward terms and the episode-wide flags (:func:`~envs_jax.views.spaces.agent_info`). With
+  ``safe=True`` ``step`` returns Safety-Gymnasium's ``(obs, reward, cost, terminated, truncated, info)``.
+* ``render_mode="rgb_array"``: ``render()`` draws the whole scene (every car) as an RGB frame;
+  without a render mode it warns and returns None (Gymnasium's convention).
 
 Bad input: an action of the wrong shape, dtype or range (or NaN) raises :class:`InvalidAction`
 (a ``ValueError`` and ``gymnasium.error.InvalidAction``); ``step`` before ``reset`` or after the
@@ -39,7 +46,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from envs_jax.views import spaces as S
-from envs_jax.views.spaces import AgentSpec, host_key, split_info
+from envs_jax.views.spaces import AgentSpec, agent_info, host_key, observe
 
 
 class InvalidAction(S.InvalidAction, gymnasium.error.InvalidAction):
@@ -63,13 +70,13 @@ def agent_index(spec: AgentSpec, agent) -> int:
 def single_agent_step(env, params, index: int, partner_policy: Callable | None):
     """``step(key, state, action) -> (obs[K, D], state, reward[K], cost[K], done, info)``: a pure step of
     the whole scenario where agent ``index`` takes ``action`` and the others ``partner_policy``."""
-    spec = AgentSpec.of(env)
+    spec = AgentSpec.of(env, params)
     others = [j for j in range(spec.num_agents) if j != index]
 
     def step(key, state, action):
         key_partner, key_step = jax.random.split(key)
         if others:
-            obs_all = env.observe(state)
+            obs_all = observe(env, state, params)
             partner = jnp.asarray(partner_policy(key_partner, obs_all[jnp.asarray(others)]))
             want = (len(others),) + spec.action_shape
             if spec.action_dim == 1 and partner.shape == want[:1]:
@@ -103,7 +110,16 @@ _COMPILED: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
 
 
 def compiled_single_agent_step(env, params, index: int, partner_policy):
-    """``jax.jit(single_agent_step(...))``, shared by every view of the same env, params, agent and partner."""
+    """``jax.jit(single_agent_step(...))``, shared by every view of the same env, params, agent and partner.
+
+    A single-agent task needs no program of its own: the step is the env's compiled ``step`` with
+    the key that :func:`single_agent_step` would pass it."""
+    if AgentSpec.of(env, params).num_agents == 1:
+        def direct(key, state, action):
+            _, key_step = jax.random.split(key)
+            return env.step(key_step, state, np.asarray(action)[None], params)
+
+        return direct
     per_env = _COMPILED.setdefault(env, {})
     key = (id(params), index, id(partner_policy))
     if key not in per_env:  # the value keeps params and the policy alive, so their ids stay theirs
@@ -121,10 +137,10 @@ class GymnasiumDrivingEnv(gymnasium.Env):
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be None or one of {self.metadata['render_modes']}, "
                              f"got {render_mode!r}")
-        self.spec_ = AgentSpec.of(env)
+        self.params = env.default_params if params is None else params
+        self.spec_ = AgentSpec.of(env, self.params)
         require_partner(self.spec_, partner_policy)
         self.env = env
-        self.params = env.default_params if params is None else params
         self.agent_index = agent_index(self.spec_, agent)
         self.agent = self.spec_.agents[self.agent_index]
         self.partner_policy = partner_policy
@@ -163,12 +179,10 @@ class GymnasiumDrivingEnv(gymnasium.Env):
         obs, self._state, reward, cost, _, info = self._step_fn(key_step, self._state, action)
         obs, reward, cost, info = jax.device_get((obs, reward, cost, info))
         i = self.agent_index
-        per_agent, common = split_info(info, self.spec_.num_agents)
         terminated, truncated = bool(info["terminated"][i]), bool(info["truncated"])
         self._over = terminated or truncated
         cost_i = float(cost[i])
-        info_out = {"cost": cost_i, **{k: v[i].copy() for k, v in per_agent.items()},
-                    **{k: v.copy() for k, v in common.items()}}
+        info_out = {"cost": cost_i, **jax.tree.map(lambda v: v[i].copy(), agent_info(info, self.spec_.num_agents))}
         obs_i = np.asarray(obs[i], self.spec_.obs_dtype)
         if self.safe:
             return obs_i, float(reward[i]), cost_i, terminated, truncated, info_out

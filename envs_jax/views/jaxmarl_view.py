@@ -4,6 +4,7 @@
 >>> from envs_jax.views import JaxMARLDrivingEnv
 >>> env = JaxMARLDrivingEnv(envs_jax.make("merge"))
 >>> obs, state = env.reset(jax.random.key(0))                 # {"agent_0": [8], "agent_1": [8]}
+>>> tasks = JaxMARLDrivingEnv(envs_jax.make("highway-fast-v0", controlled_vehicles=3))  # obs [5, 5] per agent
 >>> actions = {a: env.action_space(a).sample(jax.random.key(1)) for a in env.agents}
 >>> obs, state, rewards, dones, infos = env.step(jax.random.key(2), state, actions)
 >>> infos["cost"]                                              # [K] per-agent cost, agent order
@@ -18,18 +19,23 @@ when ``dones["__all__"]`` exactly as JaxMARL's base class does (same key split, 
   (every agent terminated, or the time limit).
 * ``infos``: every leaf has shape ``[K]`` (agent order), as JaxMARL's baselines expect when they
   reshape infos to ``[num_envs * num_agents]``: ``cost``, ``terminated``, ``truncated``,
-  ``crashed``, ``arrived``, ``on_road`` and the scenario's own flags (scalars broadcast to ``[K]``).
+  ``crashed``, ``arrived``, ``on_road``, a task's reward terms (``infos["rewards"]``) and the
+  scenario's own flags (scalars broadcast to ``[K]``); per-vehicle-slot diagnostics of the
+  traffic tasks are left out (:func:`~envs_jax.views.spaces.agent_info`).
 * The last observation of a finished episode (before the auto-reset) is kept in
   ``state.terminal_obs`` (``{agent: obs}``) for bootstrapping, and also in
   ``infos["terminal_obs"]`` with ``terminal_obs_in_infos=True`` (off by default, since it is
   not ``[K]``-shaped).
-* ``observation_space(agent)`` / ``action_space(agent)`` are JaxMARL spaces (``Box`` of the
-  observation width; ``Discrete(5)`` meta-actions or ``Box(-1, 1, (d,))``),
-  ``get_avail_actions(state)`` all-true masks (every meta-action is always accepted; an
-  impossible lane change is a no-op, as in highway-env), ``world_state(state)`` the global
-  state for centralised critics (all agents' observations concatenated, as JaxMARL's
-  ``CTRolloutManager`` and MPE world-state wrapper build it), and with ``world_state=True`` the
-  observations also carry it under ``"world_state"`` (as SMAX's do for its MAPPO baseline).
+* ``observation_space(agent)`` / ``action_space(agent)`` are JaxMARL spaces (``Box`` of one
+  agent's observation shape: ``(8,)`` for the two-agent scenarios, ``(vehicles_count, F)`` for
+  Kinematics tasks, ``(C, H, W)`` for racetrack-v0's occupancy grid, with highway-env's bounds;
+  ``Discrete(n)`` meta-actions or ``Box(-1, 1, (d,))``), ``get_avail_actions(state)`` all-true
+  masks (every meta-action is always accepted; an impossible lane change is a no-op, as in
+  highway-env), ``world_state(state)`` the global state for centralised critics (all agents'
+  observations flattened and concatenated, ``[K * obs_size]``, as JaxMARL's ``CTRolloutManager``
+  and MPE world-state wrapper build it), and with ``world_state=True`` the observations also
+  carry it under ``"world_state"`` (as SMAX's do for its MAPPO baseline). Policies whose network
+  takes flat vectors flatten the per-agent observation themselves (JaxMARL's ``batchify`` does).
 * :meth:`step_safe` returns the safe-RL tuple ``(obs, state, rewards, costs, terminations,
   truncations, infos)``: Safety-Gymnasium's ``(obs, reward, cost, terminated, truncated, info)``
   with the state after the observations, as in JaxMARL's own return order.
@@ -52,7 +58,7 @@ import numpy as np
 from flax import struct
 from jaxmarl.environments.multi_agent_env import MultiAgentEnv, State
 
-from envs_jax.views.spaces import AgentSpec, InvalidAction
+from envs_jax.views.spaces import AgentSpec, InvalidAction, agent_info, observe
 
 
 @struct.dataclass
@@ -67,15 +73,15 @@ class JaxMARLDrivingEnv(MultiAgentEnv):
     """A jaxsmarl scenario as a JaxMARL ``MultiAgentEnv`` (see the module docstring)."""
 
     def __init__(self, env, params=None, *, world_state: bool = False, terminal_obs_in_infos: bool = False):
-        self.spec = AgentSpec.of(env)
+        self.params = env.default_params if params is None else params
+        self.spec = AgentSpec.of(env, self.params)
         super().__init__(num_agents=self.spec.num_agents)
         self.env = env
-        self.params = env.default_params if params is None else params
         self.include_world_state = bool(world_state)
         self.terminal_obs_in_infos = bool(terminal_obs_in_infos)
         self.observation_spaces = {a: self.spec.jaxmarl_observation_space() for a in self.agents}
         self.action_spaces = {a: self.spec.jaxmarl_action_space() for a in self.agents}
-        self.world_state_size = self.spec.num_agents * self.spec.obs_dim
+        self.world_state_size = self.spec.num_agents * self.spec.obs_size
 
     def __repr__(self):
         return f"JaxMARLDrivingEnv({self.env!r}, agents={self.agents})"
@@ -137,11 +143,11 @@ class JaxMARLDrivingEnv(MultiAgentEnv):
         return self._obs_dict(obs), state
 
     def get_obs(self, state: JaxMARLDrivingState) -> dict:
-        return self._obs_dict(self.env.observe(state.env_state))
+        return self._obs_dict(observe(self.env, state.env_state, self.params))
 
     def world_state(self, state: JaxMARLDrivingState) -> jax.Array:
-        """Global state ``[K * obs_dim]``: every agent's observation, in agent order."""
-        return self.env.observe(state.env_state).reshape(-1)
+        """Global state ``[K * obs_size]``: every agent's observation flattened, in agent order."""
+        return observe(self.env, state.env_state, self.params).reshape(-1)
 
     @partial(jax.jit, static_argnums=(0,))
     def get_avail_actions(self, state: JaxMARLDrivingState) -> dict:
@@ -176,11 +182,7 @@ class JaxMARLDrivingEnv(MultiAgentEnv):
     @partial(jax.jit, static_argnums=(0,))
     def _step_env(self, key, state, action):
         obs, env_state, reward, cost, done, info = self.env.step(key, state.env_state, action, self.params)
-        k = self.num_agents
-        infos = {"cost": cost}
-        for name, value in info.items():
-            value = jnp.asarray(value)
-            infos[name] = jnp.broadcast_to(value, (k,)) if value.ndim == 0 else value
+        infos = {"cost": cost, **agent_info(info, self.num_agents)}
         dones = {a: info["terminated"][i] | info["truncated"] for i, a in enumerate(self.agents)}
         dones["__all__"] = done
         terminal = self._to_dict(obs)

@@ -3,7 +3,7 @@
 >>> import envs_jax, numpy as np
 >>> from envs_jax.views import BatchedPettingZooDrivingEnv
 >>> envs = BatchedPettingZooDrivingEnv(envs_jax.make("merge"), num_envs=1024)
->>> observations, infos = envs.reset(seed=0)                 # {agent: [1024, obs_dim]}
+>>> observations, infos = envs.reset(seed=0)                 # {agent: [1024, *obs_shape]}
 >>> actions = {a: np.random.randint(0, 5, 1024) for a in envs.possible_agents}
 >>> observations, rewards, terminations, truncations, infos = envs.step(actions)
 
@@ -20,8 +20,9 @@ PettingZoo environments return it; one ``step`` is one compiled call for all N e
 * An environment whose live agents have all finished is reset in the same call (PettingZoo's
   "agents is empty"): ``infos[agent]["episode_over"]`` flags it, ``infos[agent]["final_obs"]``
   keeps the agent's last observation of the finished episode, and ``observations`` are the new
-  episode's first. ``state()`` is ``[N, K * obs_dim]``.
-* ``infos[agent]``: ``cost`` and the simulator's per-agent flags, each ``[N]``. With
+  episode's first. ``state()`` is ``[N, K * obs_size]``.
+* ``infos[agent]``: ``cost`` and the simulator's per-agent flags and reward terms
+  (:func:`~envs_jax.views.spaces.agent_info`), each ``[N]``. With
   ``safe=True``, ``step`` returns ``(obs, rewards, costs, terminations, truncations, infos)``.
 
 Bad input raises :class:`~envs_jax.views.spaces.InvalidAction` (a ``ValueError``): unknown or
@@ -37,7 +38,7 @@ import jax.numpy as jnp
 import numpy as np
 from gymnasium.utils import seeding
 
-from envs_jax.views.spaces import AgentSpec, InvalidAction, ResetNeeded, host_key
+from envs_jax.views.spaces import AgentSpec, InvalidAction, ResetNeeded, agent_info, host_key
 
 
 def batched_step_fn(env, params):
@@ -45,7 +46,7 @@ def batched_step_fn(env, params):
 
     ``step(keys[N], states, actions[N, K, ...], active[N, K]) -> (states, active, out)``.
     """
-    spec = AgentSpec.of(env)
+    spec = AgentSpec.of(env, params)
     idle = spec.idle()
 
     def one(key, state, action, active):
@@ -58,8 +59,7 @@ def batched_step_fn(env, params):
         over = ~jnp.any(still)
         obs_re, st_re = env.reset(key_reset, params)
         new_state = jax.tree.map(lambda a, b: jnp.where(over, a, b), st_re, st)
-        flags = {k: v for k, v in info.items() if jnp.ndim(v) >= 1 and jnp.shape(v)[0] == spec.num_agents}
-        flags.update({k: jnp.broadcast_to(v, active.shape) for k, v in info.items() if jnp.ndim(v) == 0})
+        flags = agent_info(info, spec.num_agents)
         out = dict(obs=jnp.where(over, obs_re, obs), final_obs=obs,
                    reward=jnp.where(active, reward, 0), cost=jnp.where(active, cost, 0),
                    terminated=terminated, truncated=truncated, active=active,
@@ -75,13 +75,11 @@ class BatchedPettingZooDrivingEnv:
     metadata = {"name": "jaxsmarl_driving_batched", "render_modes": []}
 
     def __init__(self, env, num_envs: int, params=None, *, safe: bool = False):
-        import gymnasium
-
         if not isinstance(num_envs, (int, np.integer)) or isinstance(num_envs, bool) or num_envs < 1:
             raise ValueError(f"num_envs must be a positive integer, got {num_envs!r}")
         self.env = env
         self.params = env.default_params if params is None else params
-        self.spec = AgentSpec.of(env)
+        self.spec = AgentSpec.of(env, self.params)
         self.num_envs = int(num_envs)
         self.safe = bool(safe)
         self.metadata = {**type(self).metadata, "name": f"jaxsmarl_{env.name}_batched"}
@@ -89,8 +87,7 @@ class BatchedPettingZooDrivingEnv:
         self.agents = list(self.possible_agents)
         self._observation_spaces = {a: self.spec.gymnasium_observation_space() for a in self.possible_agents}
         self._action_spaces = {a: self.spec.gymnasium_action_space() for a in self.possible_agents}
-        self.state_space = gymnasium.spaces.Box(-np.inf, np.inf, (self.spec.num_agents * self.spec.obs_dim,),
-                                                self.spec.obs_dtype)
+        self.state_space = self.spec.gymnasium_state_space()
         self._reset_fn = jax.jit(jax.vmap(lambda key: env.reset(key, self.params)))
         self._step_fn = jax.jit(batched_step_fn(env, self.params))
         self._np_random = None
@@ -156,14 +153,14 @@ class BatchedPettingZooDrivingEnv:
         infos = {a: {"cost": costs[a], "active": np.asarray(out["active"][:, i], bool),
                      "episode_over": np.asarray(out["episode_over"][:, i], bool),
                      "final_obs": np.asarray(out["final_obs"][:, i], self.spec.obs_dtype),
-                     **{k: np.asarray(v[:, i]) for k, v in out["flags"].items()}}
+                     **jax.tree.map(lambda v, i=i: np.asarray(v[:, i]), out["flags"])}
                  for i, a in enumerate(agents)}
         if self.safe:
             return observations, rewards, costs, terminations, truncations, infos
         return observations, rewards, terminations, truncations, infos
 
     def state(self) -> np.ndarray:
-        """Global states ``[N, K * obs_dim]``: every agent's observation, in agent order."""
+        """Global states ``[N, K * obs_size]``: every agent's observation flattened, in agent order."""
         if self._obs is None:
             raise ResetNeeded(f"{self.spec.name}: call reset() before state()")
         return self._obs.reshape(self.num_envs, -1).copy()

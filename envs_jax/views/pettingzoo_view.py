@@ -18,11 +18,16 @@ for N environments in one jitted call.
   simulator keeps driving a finished car with the idle action (IDLE, or zero acceleration and
   steering) until the episode ends, i.e. until ``agents`` is empty; finished agents get no
   observations, rewards or infos, and their only valid action is ``None``.
+* Observations have one agent's shape (``observation_space(agent).shape``: ``(8,)``,
+  ``(vehicles_count, F)`` or ``(C, H, W)``), as the env returns them.
 * ``infos[agent]`` holds the agent's ``cost`` and its ``crashed`` / ``arrived`` / ``on_road``
-  flags, and the scenario's episode-wide flags. With ``safe=True``, ``step`` returns
+  flags, a task's reward terms, and the episode-wide flags
+  (:func:`~envs_jax.views.spaces.agent_info`). With ``safe=True``, ``step`` returns
   Safety-Gymnasium's multi-agent 6-tuple ``(obs, rewards, costs, terminations, truncations, infos)``.
-* ``state()`` is the global state for centralised critics: all agents' observations in agent
-  order (``state_space``), ``render()`` an RGB frame (``render_mode="rgb_array"``).
+* ``state()`` is the global state for centralised critics: all agents' observations flattened,
+  in agent order (``state_space``, ``[K * obs_size]``); ``render()`` an RGB frame
+  (``render_mode="rgb_array"``) of every scenario and task: controlled cars green (the two-agent
+  scenarios: the follower blue), traffic blue, crashed red.
 * ``reset(seed, options)``: ``seed`` seeds the episode stream (the same seed gives the same
   episode); ``options`` is accepted and unused (no scenario option is read from it).
 
@@ -40,7 +45,7 @@ from gymnasium import logger
 from gymnasium.utils import seeding
 from pettingzoo import ParallelEnv
 
-from envs_jax.views.spaces import AgentSpec, ResetNeeded, host_key, split_info
+from envs_jax.views.spaces import AgentSpec, ResetNeeded, agent_info, host_key
 
 
 class PettingZooDrivingEnv(ParallelEnv):
@@ -49,14 +54,12 @@ class PettingZooDrivingEnv(ParallelEnv):
     metadata = {"name": "jaxsmarl_driving", "render_modes": ["rgb_array"], "is_parallelizable": True}
 
     def __init__(self, env, params=None, *, render_mode: str | None = None, safe: bool = False):
-        import gymnasium
-
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be None or one of {self.metadata['render_modes']}, "
                              f"got {render_mode!r}")
         self.env = env
         self.params = env.default_params if params is None else params
-        self.spec = AgentSpec.of(env)
+        self.spec = AgentSpec.of(env, self.params)
         self.metadata = {**type(self).metadata, "name": f"jaxsmarl_{env.name}",
                          "render_fps": env.policy_frequency}
         self.render_mode = render_mode
@@ -65,8 +68,7 @@ class PettingZooDrivingEnv(ParallelEnv):
         self.agents: list[str] = []
         self._observation_spaces = {a: self.spec.gymnasium_observation_space() for a in self.possible_agents}
         self._action_spaces = {a: self.spec.gymnasium_action_space() for a in self.possible_agents}
-        self.state_space = gymnasium.spaces.Box(-np.inf, np.inf, (self.spec.num_agents * self.spec.obs_dim,),
-                                                self.spec.obs_dtype)
+        self.state_space = self.spec.gymnasium_state_space()
         self._np_random = None
         self._key = None
         self._state = None
@@ -109,7 +111,7 @@ class PettingZooDrivingEnv(ParallelEnv):
         obs, self._state, reward, cost, _, info = self.env.step(key_step, self._state, action, self.params)
         obs, reward, cost, info = jax.device_get((obs, reward, cost, info))
         self._obs = np.asarray(obs, dtype=self.spec.obs_dtype)
-        per_agent, common = split_info(info, self.spec.num_agents)
+        per_agent = agent_info(info, self.spec.num_agents)
         terminated, truncated = np.asarray(info["terminated"], bool), bool(info["truncated"])
         index = {a: i for i, a in enumerate(self.possible_agents)}
         observations = {a: self._obs[index[a]].copy() for a in live}
@@ -117,15 +119,14 @@ class PettingZooDrivingEnv(ParallelEnv):
         costs = {a: float(cost[index[a]]) for a in live}
         terminations = {a: bool(terminated[index[a]]) for a in live}
         truncations = {a: truncated for a in live}
-        infos = {a: {"cost": costs[a], **{k: v[index[a]].copy() for k, v in per_agent.items()},
-                     **{k: v.copy() for k, v in common.items()}} for a in live}
+        infos = {a: {"cost": costs[a], **jax.tree.map(lambda v, i=index[a]: v[i].copy(), per_agent)} for a in live}
         self.agents = [a for a in live if not (terminations[a] or truncations[a])]
         if self.safe:
             return observations, rewards, costs, terminations, truncations, infos
         return observations, rewards, terminations, truncations, infos
 
     def state(self) -> np.ndarray:
-        """Global state ``[K * obs_dim]``: every agent's current observation, in agent order."""
+        """Global state ``[K * obs_size]``: every agent's current observation flattened, in agent order."""
         if self._obs is None:
             raise ResetNeeded(f"{self.spec.name}: call reset() before state()")
         return self._obs.reshape(-1).copy()

@@ -1,17 +1,22 @@
-"""What every view needs to know about one agent of a ``DrivingEnv``, read from the env itself.
+"""What every view needs to know about one agent of an environment, read from the env itself.
 
-``AgentSpec.of(env)`` reads the number of agents ``K``, the observation width and dtype and the
-action kind (``K`` discrete meta-actions in ``0..n-1``, or ``K`` continuous vectors in
-``[-1, 1]^d``) from ``env.num_agents``, ``env.obs_shape``, ``env.discrete``, ``env.num_actions`` and
-``env.action_dim``; nothing here assumes two agents. It builds the per-agent spaces of each
-ecosystem (JaxMARL's and Gymnasium's, imported lazily so that a view only needs its own package)
-and checks host-side actions: an action of the wrong shape, dtype or range, or a NaN, raises
-:class:`InvalidAction` (a ``ValueError``) that names the agent and what is allowed.
+``AgentSpec.of(env)`` reads the number of agents ``K``, one agent's observation shape, dtype and
+bounds, and the action kind (``K`` discrete meta-actions in ``0..n-1``, or ``K`` continuous vectors
+in ``[-1, 1]^d``) from the env (``num_agents``, ``obs_shape``, ``discrete``, ``num_actions``,
+``action_shape`` and the shapes its ``reset`` returns). It serves the two-agent scenarios
+(``[K, 8]`` observations) and the traffic tasks alike (``[K, vehicles_count, F]`` Kinematics,
+``[K, C, H, W]`` occupancy grids); nothing here assumes two agents or a flat observation. It
+builds the per-agent spaces of each ecosystem (JaxMARL's and Gymnasium's, imported lazily so that
+a view only needs its own package) and checks host-side actions: an action of the wrong shape,
+dtype or range, or a NaN, raises :class:`InvalidAction` (a ``ValueError``) that names the agent
+and what is allowed.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import inspect
+import math
 from typing import Any
 
 import jax
@@ -19,8 +24,11 @@ import jax.numpy as jnp
 import numpy as np
 
 from envs_jax import vehicle as V
+from envs_jax.occupancy_grid import OccupancyGridConfig
 
 IDLE = V.ACTION_NAMES.index("IDLE")
+# info entries that are the random numbers a step drew (kept by the simulator for its parity tests), not outcomes
+_DRAWS_SUFFIX = "_draws"
 
 
 class InvalidAction(ValueError):
@@ -42,27 +50,54 @@ def agent_names(num_agents: int) -> list[str]:
 
 @dataclasses.dataclass(frozen=True)
 class AgentSpec:
-    """Per-agent shapes of an environment (every agent of a scenario has the same ones)."""
+    """Per-agent shapes of an environment (every agent of a scenario or task has the same ones)."""
 
     name: str
     num_agents: int
-    obs_dim: int
-    obs_dtype: Any  # numpy dtype of the observations (float32, or float64 under jax_enable_x64)
+    obs_shape: tuple  # one agent's observation: (8,), (vehicles_count, F) or (C, H, W)
+    obs_dtype: Any  # numpy dtype of the observations the env returns
+    obs_low: float  # the observation bounds (highway-env's: an occupancy grid clipped to [-1, 1], else unbounded)
+    obs_high: float
     discrete: bool
     num_actions: int | None  # discrete: meta-actions 0..num_actions-1
     action_dim: int | None  # continuous: vector length d
+    action_names: tuple | None  # discrete: the meta-action of each index
+    idle_action: int | None  # discrete: the index of IDLE (keep lane and speed)
 
     @classmethod
-    def of(cls, env) -> "AgentSpec":
-        obs_shape = tuple(int(s) for s in env.obs_shape)
+    def of(cls, env, params=None) -> "AgentSpec":
         k = int(env.num_agents)
-        if len(obs_shape) != 2 or obs_shape[0] != k:
-            raise ValueError(f"{env.name}: expected obs_shape (num_agents, obs_dim) = ({k}, D), got {obs_shape}")
-        dtype = np.dtype(jnp.zeros(()).dtype)  # the simulator's float type: float32, float64 under x64
-        return cls(name=str(env.name), num_agents=k, obs_dim=obs_shape[1], obs_dtype=dtype,
-                   discrete=bool(env.discrete),
-                   num_actions=int(env.num_actions) if env.discrete else None,
-                   action_dim=None if env.discrete else int(env.action_dim))
+        obs_shape = tuple(int(s) for s in env.obs_shape)
+        params = env.default_params if params is None else params
+        obs = jax.eval_shape(lambda key: env.reset(key, params)[0], jax.random.key(0))
+        if len(obs_shape) < 2 or obs_shape[0] != k or tuple(obs.shape) != obs_shape:
+            raise ValueError(f"{env.name}: expected observations of shape (num_agents, ...) = ({k}, ...) as "
+                             f"env.obs_shape says, got obs_shape {obs_shape} and reset() observations {obs.shape}")
+        action_shape = tuple(int(s) for s in env.action_shape)
+        discrete = bool(env.discrete)
+        if action_shape[:1] != (k,) or len(action_shape) != (1 if discrete else 2):
+            raise ValueError(f"{env.name}: expected action_shape ({k},) (discrete) or ({k}, d) (continuous), "
+                             f"got {action_shape}")
+        low, high = -math.inf, math.inf
+        grid = getattr(env, "obs_config", None)
+        if isinstance(grid, OccupancyGridConfig) and grid.clip:
+            low, high = -1.0, 1.0
+        names = None
+        if discrete:
+            n = int(env.num_actions)
+            names = tuple(getattr(env, "action_names", V.ACTION_NAMES[:n]))
+            if len(names) != n or "IDLE" not in names:
+                raise ValueError(f"{env.name}: expected {n} meta-action names including IDLE, got {names}")
+        return cls(name=str(env.name), num_agents=k, obs_shape=obs_shape[1:], obs_dtype=np.dtype(obs.dtype),
+                   obs_low=low, obs_high=high, discrete=discrete,
+                   num_actions=int(env.num_actions) if discrete else None,
+                   action_dim=None if discrete else action_shape[1], action_names=names,
+                   idle_action=names.index("IDLE") if discrete else None)
+
+    @property
+    def obs_size(self) -> int:
+        """Entries in one agent's observation (its length once flattened; the global state is ``K`` of them)."""
+        return math.prod(self.obs_shape)
 
     @property
     def agents(self) -> list[str]:
@@ -82,13 +117,13 @@ class AgentSpec:
         """The neutral action (IDLE meta-action, or zero acceleration/steering) for ``batch + (K,)`` agents."""
         shape = batch + (self.num_agents,) + self.action_shape
         if self.discrete:
-            return jnp.full(shape, IDLE, jnp.int32)
+            return jnp.full(shape, self.idle_action, jnp.int32)
         return jnp.zeros(shape, jnp.float32)
 
     def allowed(self) -> str:
         if self.discrete:
             return (f"an integer in 0..{self.num_actions - 1} "
-                    f"({', '.join(f'{i}={n}' for i, n in enumerate(V.ACTION_NAMES[:self.num_actions]))})")
+                    f"({', '.join(f'{i}={n}' for i, n in enumerate(self.action_names))})")
         return f"a float array of shape ({self.action_dim},) in [-1, 1]"
 
     def check_action(self, agent: str, value, batch: tuple[int, ...] = ()) -> np.ndarray:
@@ -155,8 +190,13 @@ class AgentSpec:
     def gymnasium_observation_space(self):
         import gymnasium
 
-        # absolute world coordinates and velocities: unbounded
-        return gymnasium.spaces.Box(-np.inf, np.inf, (self.obs_dim,), self.obs_dtype)
+        return gymnasium.spaces.Box(self.obs_low, self.obs_high, self.obs_shape, self.obs_dtype)
+
+    def gymnasium_state_space(self):
+        """The global state for centralised critics: every agent's observation flattened, in agent order."""
+        import gymnasium
+
+        return gymnasium.spaces.Box(self.obs_low, self.obs_high, (self.num_agents * self.obs_size,), self.obs_dtype)
 
     def gymnasium_action_space(self):
         import gymnasium
@@ -168,7 +208,7 @@ class AgentSpec:
     def jaxmarl_observation_space(self):
         from jaxmarl.environments import spaces
 
-        return spaces.Box(-jnp.inf, jnp.inf, (self.obs_dim,), jnp.dtype(self.obs_dtype))
+        return spaces.Box(self.obs_low, self.obs_high, self.obs_shape, jnp.dtype(self.obs_dtype))
 
     def jaxmarl_action_space(self):
         from jaxmarl.environments import spaces
@@ -178,16 +218,39 @@ class AgentSpec:
         return spaces.Box(-1.0, 1.0, (self.action_dim,), jnp.float32)
 
 
-def split_info(info: dict, num_agents: int) -> tuple[dict, dict]:
-    """Split a core ``info`` dict (numpy) into per-agent leaves (leading axis ``K``) and global ones."""
-    per_agent, common = {}, {}
+def agent_info(info: dict, num_agents: int) -> dict:
+    """The part of a core ``info`` dict the views report, every leaf ``[K]`` (agent order).
+
+    Per-agent leaves (leading axis ``K``: ``terminated``, ``crashed``, the reward terms, ...) are
+    kept and episode-wide scalars (``truncated``, a task's flags) broadcast to ``[K]``; leaves of
+    any other shape (per-vehicle-slot diagnostics such as intersection's ``cleared``) and the
+    random numbers a step drew (``*_draws``) are left out. Nested dicts keep their nesting.
+    Works on numpy and on JAX (traced) values.
+    """
+    out = {}
     for key, value in info.items():
-        value = np.asarray(value)
-        if value.ndim >= 1 and value.shape[0] == num_agents:
-            per_agent[key] = value
-        else:
-            common[key] = value
-    return per_agent, common
+        if str(key).endswith(_DRAWS_SUFFIX):
+            continue
+        if isinstance(value, dict):
+            sub = agent_info(value, num_agents)
+            if sub:
+                out[key] = sub
+            continue
+        xp = jnp if isinstance(value, jax.Array) else np
+        value = xp.asarray(value)
+        if value.ndim == 0:
+            out[key] = xp.broadcast_to(value, (num_agents,))
+        elif value.shape == (num_agents,):
+            out[key] = value
+    return out
+
+
+def observe(env, state, params):
+    """The env's observation of ``state``: ``env.observe(state, params)`` for the traffic tasks,
+    ``env.observe(state)`` for the two-agent scenarios."""
+    if len(inspect.signature(env.observe).parameters) >= 2:
+        return env.observe(state, params)
+    return env.observe(state)
 
 
 def host_key(np_random: np.random.Generator) -> jax.Array:
