@@ -54,12 +54,13 @@ FAST = (("racetrack_mappo-l", "columns"), ("intersection_cs-maddpg", "rows"))
 
 @contextlib.contextmanager
 def layout(name: str):
-    """Agents built inside use the network layout ``name`` (``"columns"`` or ``"rows"``)."""
+    """Agents built inside use the network layout ``name`` (``"columns"`` or ``"rows"``): the override of
+    :func:`jaxsmarl.layout.layout`."""
     from unittest import mock
 
-    from jaxsmarl import columns
+    from jaxsmarl.layout import ENV_VAR
 
-    with mock.patch.object(columns, "enabled", lambda: name == "columns"):
+    with mock.patch.dict(os.environ, {ENV_VAR: name}):
         yield
 
 
