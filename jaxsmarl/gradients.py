@@ -4,7 +4,8 @@
 :func:`gradient_update_fn` is one optimiser step on a loss, as brax's ``gradient_update_fn``. :class:`LoopCarry`
 packs parameters and optimiser states for a minibatch loop in the layout's form: in the column layout each
 network as one vector (:class:`jaxsmarl.flat.Flat`; optax then clips and steps one vector per network instead of
-each of its arrays) and a stack of networks as a tuple, stepped one after the other; in the row layout the trees
+each of its arrays) and a stack of networks as a tuple, stepped one after the other (a ``vmap`` over the stack
+would turn every product into a batched one, slower there than separate plain ones); in the row layout the trees
 themselves, a stack stepped with ``vmap``. The loss always receives the parameter tree.
 """
 
