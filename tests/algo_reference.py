@@ -65,9 +65,11 @@ def layout(name: str):
 
 
 def _leaves(tree, prefix: str, every: int = 3) -> dict:
-    """Every ``every``-th parameter leaf of ``tree`` by its path (the losses of each update depend on all)."""
-    leaves = jax.tree_util.tree_leaves_with_path(tree)
-    return {prefix + jax.tree_util.keystr(p): np.asarray(x) for p, x in leaves[::every]}
+    """Every ``every``-th parameter leaf of ``tree`` by its path, kernels left out to keep the file small (the
+    losses of each update and the other leaves depend on them)."""
+    leaves = jax.tree_util.tree_leaves_with_path(tree)[::every]
+    named = ((prefix + jax.tree_util.keystr(p), x) for p, x in leaves)
+    return {name: np.asarray(x) for name, x in named if "kernel" not in name}
 
 
 def short_run(name: str, layout_name: str) -> dict:
