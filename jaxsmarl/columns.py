@@ -13,8 +13,8 @@ own reverse-mode rule; it computes exactly ``(x^T @ W)^T``, so networks built on
 on the forward pass: for a vjp evaluated many times at one point (MACPO's Fisher products), where the copy is made
 once.
 
-MACPO's actor keeps the row layout (its update is dominated by the conjugate-gradient products). Measurements:
-docs/performance.md.
+MACPO's actor keeps the row layout (its update is dominated by the conjugate-gradient products). Where the column
+layout is used: :mod:`jaxsmarl.layout`; measurements: docs/performance.md.
 """
 
 from __future__ import annotations
@@ -22,13 +22,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-__all__ = ["dense", "affine", "affine_rows", "enabled", "in_chunks"]
-
-
-def enabled() -> bool:
-    """Whether the update loops use the column layout: on XLA:CPU, where it was measured to pay; elsewhere (a GPU)
-    they keep the row layout and batched critics they were measured with."""
-    return jax.default_backend() == "cpu"
+__all__ = ["dense", "affine", "affine_rows", "in_chunks"]
 
 
 @jax.custom_vjp

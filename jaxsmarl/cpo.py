@@ -42,7 +42,7 @@ def gauss_newton_operator(outputs_fn: Callable, out_kl_fn: Callable, theta, damp
     differentiating its backward pass forward-mode.
 
     ``J^T`` is the transpose of the linearisation, or, with ``reverse_fn`` (the same function of ``theta`` written
-    for a faster reverse mode, e.g. :func:`jaxsmarl.ppo_common.mlp_rows`), its ``jax.vjp`` at ``theta``.
+    for a faster reverse mode, e.g. :func:`jaxsmarl.mlp.mlp_rows`), its ``jax.vjp`` at ``theta``.
     """
     out, jvp_fn = jax.linearize(outputs_fn, theta)
     vjp_fn = jax.linear_transpose(jvp_fn, theta) if reverse_fn is None else jax.vjp(reverse_fn, theta)[1]

@@ -8,6 +8,11 @@ The networks of all agents and kinds are stored as ONE parameter pytree with lea
 ``[n_agents, n_kinds]`` (e.g. ``[2, 2]`` = {leader, follower} x {Q, G}); evaluation contracts over those axes with
 batched matrix products (einsums over the stacked weights), which XLA:CPU runs much faster than nested vmaps. :func:`joint_values` evaluates every joint action
 ``A1 x ... x Ak`` in one forward pass; :func:`values_at` evaluates one given joint action.
+
+MADDPG's critics (continuous actions) are the same networks on ``concat(s, a1, a2)``: :func:`critic_values` (the
+stacked einsums) and :func:`critic_values_columns` (each network on its own in the column layout of
+:mod:`jaxsmarl.columns`), built for a layout by :func:`make_critic_stack` (docs/design.md, networks and layouts).
+:class:`Dense` names its layers by :func:`layer_name`, which the functions above read.
 """
 
 from __future__ import annotations
@@ -20,10 +25,23 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-__all__ = ["JointActionMLP", "joint_action_grid", "joint_onehot", "init_stacked", "joint_values", "values_at", "soft_update"]
+from jaxsmarl import columns
+from jaxsmarl.layout import layout as current_layout
+from jaxsmarl.network import Network
+
+__all__ = ["Dense", "layer_name", "JointActionMLP", "joint_action_grid", "joint_onehot", "init_stacked",
+           "joint_values", "values_at", "critic_values", "critic_values_columns", "make_critic_stack",
+           "soft_update"]
 
 
-class _Dense(nn.Module):
+def layer_name(i: int) -> str:
+    """The parameter name of the ``i``-th :class:`Dense` layer of :class:`JointActionMLP` and
+    :class:`jaxsmarl.actor.Actor` (the output layer is the last); the names flax's automatic naming gave, so that
+    trees written before stay valid."""
+    return f"_Dense_{i}"
+
+
+class Dense(nn.Module):
     """Dense layer with a choice of initialisation ("torch": the authors' PyTorch default, "lecun": flax's)."""
 
     features: int
@@ -52,9 +70,9 @@ class JointActionMLP(nn.Module):
     @nn.compact
     def __call__(self, obs: jax.Array, joint_onehot: jax.Array) -> jax.Array:
         x = jnp.concatenate([obs, joint_onehot], axis=-1)
-        for h in self.hidden:
-            x = nn.relu(_Dense(h, self.init_scheme)(x))
-        return _Dense(1, self.init_scheme)(x)[..., 0]
+        for i, h in enumerate(self.hidden):
+            x = nn.relu(Dense(h, self.init_scheme, name=layer_name(i))(x))
+        return Dense(1, self.init_scheme, name=layer_name(len(self.hidden)))(x)[..., 0]
 
 
 def joint_action_grid(num_actions: Sequence[int]) -> np.ndarray:
@@ -83,7 +101,7 @@ def init_stacked(module: nn.Module, key: jax.Array, obs_dim: int, num_actions: S
 def _layers(params) -> list:
     """The stacked Dense layers of :class:`JointActionMLP` parameters, input to output."""
     p = params["params"]
-    return [p[f"_Dense_{i}"] for i in range(len(p))]
+    return [p[layer_name(i)] for i in range(len(p))]
 
 
 def _hidden_and_out(h: jax.Array, layers: list) -> jax.Array:
@@ -132,6 +150,45 @@ def values_at(params, obs: jax.Array, actions: jax.Array, num_actions: Sequence[
     h = jnp.einsum("rnd,nkdh->nkrh", o, w[:, :, :d]) + jnp.einsum("ra,nkah->nkrh", onehot, w[:, :, d:])
     out = _hidden_and_out(nn.relu(h + b[:, :, None]), layers)  # [n, k, R]
     return jnp.moveaxis(out, 2, 0).reshape(batch + out.shape[:2])
+
+
+def critic_values(params, x: jax.Array) -> jax.Array:
+    """Stacked critics (``[n, K, ...]`` :class:`JointActionMLP` parameters) on per-agent inputs ``x``
+    ``[R, n, D_in]`` (agent i's critics read ``x[:, i]``) -> ``[R, n, K]``."""
+    layers = _layers(params)
+    h = jnp.einsum("rnd,nkdh->nkrh", x, layers[0]["kernel"]) + layers[0]["bias"][:, :, None]
+    for layer in layers[1:]:
+        h = jnp.einsum("nkrh,nkho->nkro", nn.relu(h), layer["kernel"]) + layer["bias"][:, :, None]
+    return jnp.moveaxis(h[..., 0], 2, 0)
+
+
+def critic_values_columns(params, x: jax.Array) -> jax.Array:
+    """:func:`critic_values` (the same function) with each critic run on its own in the column layout of
+    :mod:`jaxsmarl.columns`: faster reverse-mode gradients on XLA:CPU, no forward-mode derivative."""
+    layers = _layers(params)
+    n, k = layers[0]["bias"].shape[:2]
+    out = []
+    for i in range(n):
+        xt = x[:, i].T  # [D_in, R]
+        for j in range(k):
+            net = [{name: w[i, j] for name, w in layer.items()} for layer in layers]
+            h = columns.dense(net[0], xt)
+            for layer in net[1:]:
+                h = columns.dense(layer, nn.relu(h))
+            out.append(h[0])
+    return jnp.stack(out, axis=-1).reshape((x.shape[0], n, k))
+
+
+def make_critic_stack(obs_dim: int, num_actions: Sequence[int], hidden: Sequence[int] = (64, 64, 64),
+                      init_scheme: str = "torch", shape=(2, 2)) -> Network:
+    """A ``shape`` stack of :class:`JointActionMLP` critics on ``obs_dim + sum(num_actions)`` inputs as a
+    :class:`jaxsmarl.network.Network` in the layout of :func:`jaxsmarl.layout.layout`: ``init(key)`` (
+    :func:`init_stacked`), ``apply`` = :func:`critic_values`, ``apply_update`` its column form
+    (:func:`critic_values_columns`) in the column layout."""
+    module = JointActionMLP(hidden=tuple(hidden), init_scheme=init_scheme)
+    lay = current_layout()
+    init = lambda key: init_stacked(module, key, obs_dim, num_actions, shape=shape)
+    return Network(lay, init, critic_values, critic_values_columns if lay == "columns" else critic_values)
 
 
 def soft_update(target, online, tau: float):

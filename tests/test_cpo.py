@@ -9,9 +9,11 @@ import pytest
 from jax.flatten_util import ravel_pytree
 
 from jaxsmarl import cpo
-from jaxsmarl import ppo_common as pc
-from jaxsmarl.algos.ppo_base import PPOConfig
 from jaxsmarl.algos.macpo import MACPO
+from jaxsmarl.algos.ppo_base import PPOConfig
+from jaxsmarl.gaussian import gaussian_kl
+from jaxsmarl.losses import masked_mean
+from jaxsmarl.mlp import mlp_rows
 
 
 def test_conjugate_gradient_solves_spd_system(x64):
@@ -42,7 +44,7 @@ def test_fisher_vector_product_matches_closed_form_fisher():
 
         def kl(th):
             m, s = agent.policy(unravel(th), obs)
-            return jnp.mean(pc.gaussian_kl(m0, s0, m, jnp.broadcast_to(s, m.shape)))
+            return jnp.mean(gaussian_kl(m0, s0, m, jnp.broadcast_to(s, m.shape)))
 
         j_mu = jax.jacfwd(lambda th: agent.policy(unravel(th), obs)[0])(theta)  # [5, 2, P]
         j_ls = jax.jacfwd(lambda th: jnp.log(agent.policy(unravel(th), obs)[1]))(theta)  # [2, P]
@@ -52,7 +54,7 @@ def test_fisher_vector_product_matches_closed_form_fisher():
         fvp = cpo.fisher_vector_product(kl, theta, v, damping=0.1)
         np.testing.assert_allclose(fvp, fisher @ v + 0.1 * v, rtol=1e-5, atol=1e-9)
         # what MACPO uses: J^T H_out J with the network linearised once, for any vector
-        kl_of = lambda out: jnp.mean(pc.gaussian_kl(m0, s0, out[0], jnp.broadcast_to(out[1], out[0].shape)))
+        kl_of = lambda out: jnp.mean(gaussian_kl(m0, s0, out[0], jnp.broadcast_to(out[1], out[0].shape)))
         op = jax.jit(lambda th, u: cpo.gauss_newton_operator(lambda t: agent.policy(unravel(t), obs), kl_of, th,
                                                              damping=0.1)(u))
         for u in (v, 2.0 * v + 1.0, jnp.zeros_like(v)):
@@ -69,14 +71,14 @@ def test_gauss_newton_operator_is_the_kl_hessian_of_a_masked_minibatch():
     obs = jax.random.normal(jax.random.PRNGKey(1), (512, 8))
     mask = jax.random.uniform(jax.random.PRNGKey(3), (512,)) < 0.7
     m0, s0 = jax.lax.stop_gradient(agent.policy(actor, obs))
-    kl_of = lambda out: pc.masked_mean(pc.gaussian_kl(m0, s0, out[0], jnp.broadcast_to(out[1], out[0].shape)), mask)
+    kl_of = lambda out: masked_mean(gaussian_kl(m0, s0, out[0], jnp.broadcast_to(out[1], out[0].shape)), mask)
     policy_at = lambda t: agent.policy(unravel(t), obs)
     v = jax.random.normal(jax.random.PRNGKey(2), theta.shape)
     full = jax.jit(lambda u: cpo.fisher_vector_product(lambda t: kl_of(policy_at(t)), theta, u, 0.1))(v)
     gn = jax.jit(lambda u: cpo.gauss_newton_operator(policy_at, kl_of, theta, 0.1)(u))(v)
     np.testing.assert_allclose(gn, full, rtol=1e-4, atol=1e-6 * float(jnp.max(jnp.abs(full))))
-    # J^T from a separate reverse-mode form of the network (MACPO on XLA:CPU: pc.mlp_rows)
-    rows_at = lambda t: (pc.mlp_rows(unravel(t)["net"], obs), agent.policy(unravel(t), obs)[1])
+    # J^T from a separate reverse-mode form of the network (MACPO on XLA:CPU: mlp_rows)
+    rows_at = lambda t: (mlp_rows(unravel(t)["net"], obs), agent.policy(unravel(t), obs)[1])
     gn_rows = jax.jit(lambda u: cpo.gauss_newton_operator(policy_at, kl_of, theta, 0.1, reverse_fn=rows_at)(u))(v)
     np.testing.assert_allclose(gn_rows, full, rtol=1e-4, atol=1e-6 * float(jnp.max(jnp.abs(full))))
 

@@ -13,6 +13,7 @@ from jax.flatten_util import ravel_pytree
 
 from jaxsmarl.algos.maddpg import (MADDPGAgent, MADDPGConfig, Transition, actor_columns, critic_values,
                                    critic_values_columns)
+from jaxsmarl.layout import ENV_VAR
 from train.config import load_config
 
 D = 8
@@ -110,11 +111,9 @@ def test_column_layout_networks_are_the_same_functions_with_the_same_gradients(c
         np.testing.assert_allclose(b, a, rtol=1e-10, atol=1e-12)
 
 
-def test_update_is_the_same_in_both_layouts():
+def test_update_is_the_same_in_both_layouts(monkeypatch):
     """One update (constrained, Stackelberg, sequential actor order) with the column-layout networks (XLA:CPU) and
     with the row layout (other backends) gives the same new state."""
-    agent = _agent(hidden_sizes=(64, 64, 64), actor_order="sequential")
-    st = agent.init(jax.random.PRNGKey(3))
     ks = jax.random.split(jax.random.PRNGKey(4), 4)
     batch = Transition(obs=jax.random.normal(ks[0], (64, 2, D)), action=jax.random.uniform(ks[1], (64, 2, 1)),
                        reward=jax.random.normal(ks[2], (64, 2)), cost=jax.random.uniform(ks[3], (64, 2)),
@@ -122,7 +121,9 @@ def test_update_is_the_same_in_both_layouts():
                        truncated=jnp.zeros((64,), bool))
     out = {}
     for flag in (True, False):
-        agent.columns = flag
+        monkeypatch.setenv(ENV_VAR, "columns" if flag else "rows")
+        agent = _agent(hidden_sizes=(64, 64, 64), actor_order="sequential")
+        st = agent.init(jax.random.PRNGKey(3))
         out[flag] = jax.jit(agent.update)(st, batch, jax.random.PRNGKey(0))
         # the row layout (GPU) uses no column layer anywhere; the column layout (CPU) uses them
         assert ("custom_vjp" in str(jax.make_jaxpr(agent.update)(st, batch, jax.random.PRNGKey(0)))) == flag

@@ -11,7 +11,9 @@ import pytest
 from jaxsmarl import columns
 from jaxsmarl.algos.mappo_l import MAPPOL, lagrange_step
 from jaxsmarl.algos.ppo_base import PPOConfig
-from jaxsmarl.ppo_common import MLP, mlp_columns, mlp_rows, random_permutation
+from jaxsmarl.layout import ENV_VAR
+from jaxsmarl.mlp import MLP, mlp_columns, mlp_rows
+from jaxsmarl.permutation import random_permutation
 from train import __main__ as cli
 from train.config import load_config
 from train.onpolicy import Transition
@@ -56,8 +58,8 @@ def test_sequential_factor_is_previous_agents_ratio():
     # ratio 1 at the start: behaviour log-probs equal to the current policy's
     agent = MAPPOL(PPOConfig(**cfg))
     mean, std = agent._all_means(st0, agent.normalize_obs(st0, traj.obs.reshape(-1, 2, 8)))
-    from jaxsmarl import ppo_common as pc
-    logp = pc.gaussian_log_prob(traj.action.reshape(-1, 2, 1), mean, std).reshape(8, 4, 2)
+    from jaxsmarl.gaussian import gaussian_log_prob
+    logp = gaussian_log_prob(traj.action.reshape(-1, 2, 1), mean, std).reshape(8, 4, 2)
     traj = traj.replace(logp=logp)
     st_seq, _ = jax.jit(agent.update)(st0, traj, jax.random.PRNGKey(5))
     st_sim, _ = jax.jit(MAPPOL(PPOConfig(**{**cfg, "sequential": False})).update)(st0, traj, jax.random.PRNGKey(5))
@@ -186,18 +188,18 @@ def test_in_chunks_is_the_function_on_all_samples(B):
 
 
 @pytest.mark.parametrize("algo", ["mappo-l", "macpo"])
-def test_update_is_the_same_in_both_layouts(algo):
+def test_update_is_the_same_in_both_layouts(algo, monkeypatch):
     """A whole update with the column layout (XLA:CPU: advantage preparation with the critics' values computed
     chunk by chunk, the sequential factor's log-probs likewise, the actor loss and the unrolled critics' steps
     with each network as one vector) gives the same new state as the row layout with vmapped critics (other
     backends), which uses no column layer anywhere."""
     from jaxsmarl.algos.macpo import MACPO
-    agent = (MAPPOL if algo == "mappo-l" else MACPO)(PPOConfig(num_minibatches=4, ppo_epochs=2))
-    st = agent.init(jax.random.PRNGKey(1))
     traj = _rollout(40, 30, 1.0, jax.random.PRNGKey(2))  # 1200 samples: 3 chunks of 512, the last one padded
     out = {}
     for flag in (True, False):
-        agent.columns = flag
+        monkeypatch.setenv(ENV_VAR, "columns" if flag else "rows")
+        agent = (MAPPOL if algo == "mappo-l" else MACPO)(PPOConfig(num_minibatches=4, ppo_epochs=2))
+        st = agent.init(jax.random.PRNGKey(1))
         out[flag] = jax.jit(agent.update)(st, traj, jax.random.PRNGKey(0))
         jaxpr = str(jax.make_jaxpr(agent.update)(st, traj, jax.random.PRNGKey(0)))
         assert ("custom_vjp" in jaxpr) == flag
@@ -206,11 +208,11 @@ def test_update_is_the_same_in_both_layouts(algo):
 
 
 def test_flat_parameters_round_trip_and_take_the_same_adam_steps(x64):
-    """ppo_common.to_flat / from_flat: the trees come back bit for bit, and clipped Adam steps on the one-vector
+    """flat.to_flat / from_flat: the trees come back bit for bit, and clipped Adam steps on the one-vector
     form (the CPU minibatch loops) give the tree form's parameters and moments (float64)."""
     import optax
 
-    from jaxsmarl.ppo_common import from_flat, to_flat
+    from jaxsmarl.flat import from_flat, to_flat
     net = MLP(16, 1, 2, 1.0, True)
     params = net.init(jax.random.PRNGKey(0), jnp.zeros((1, 5), jnp.float64))
     params = jax.tree.map(lambda p: p.astype(jnp.float64), {"net": params, "log_std": jnp.array([0.3, -0.2])})

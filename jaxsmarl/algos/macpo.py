@@ -9,7 +9,7 @@ For each of ``num_minibatches`` minibatches (one pass, no epochs), agent i:
 4. ``H^-1 g``, ``H^-1 b`` by conjugate gradient with products by the Hessian of the mean KL at the current
    parameters (damping 0.1), computed as ``J^T H_out J`` (:func:`jaxsmarl.cpo.gauss_newton_operator`: the same
    matrix, cheaper than differentiating the KL's gradient forward-mode; on XLA:CPU the
-   ``J^T`` products make their weight gradients from transposed layer inputs, :func:`jaxsmarl.ppo_common.mlp_rows`);
+   ``J^T`` products make their weight gradients from transposed layer inputs, :func:`jaxsmarl.mlp.mlp_rows`);
 5. the CPO direction (:func:`jaxsmarl.cpo.cpo_direction`);
 6. the line search (:func:`jaxsmarl.cpo.line_search`): accept a candidate if ``KL < delta``, the reward loss
    improved (only when ``optim_case > 1``) and the cost surrogate grew by at most ``max(-c, 0)``.
@@ -22,8 +22,9 @@ import jax.numpy as jnp
 from jax.flatten_util import ravel_pytree
 
 from jaxsmarl import cpo
-from jaxsmarl import ppo_common as pc
 from jaxsmarl.algos.ppo_base import PPOBase, PPOState
+from jaxsmarl.gaussian import gaussian_kl, gaussian_log_prob, std_from_param
+from jaxsmarl.losses import masked_mean
 
 __all__ = ["MACPO"]
 
@@ -37,19 +38,18 @@ class MACPO(PPOBase):
         policy_at = lambda th: self.policy(unravel(th), o)  # (mean [B, k], std [k])
 
         def policy_rev(th):
-            """``policy_at`` for reverse mode only; on XLA:CPU (``self.columns``) with the weight gradients
-            taken from transposed layer inputs made once per step (:func:`pc.mlp_rows`): the gradients below
-            and the ``J^T`` of the 20 Fisher products (:func:`cpo.gauss_newton_operator`)."""
-            if not self.columns:
-                return policy_at(th)
+            """``policy_at`` for reverse mode replayed at one point (``Network.apply_replay``; in the column
+            layout with the weight gradients taken from transposed layer inputs made once per step,
+            :func:`jaxsmarl.mlp.mlp_rows`): the gradients below and the ``J^T`` of the Fisher products
+            (:func:`cpo.gauss_newton_operator`)."""
             act = unravel(th)
-            return (pc.mlp_rows(act["net"], o, cfg.layer_n, cfg.feature_norm),
-                    pc.std_from_param(act["log_std"], cfg.std_x_coef, cfg.std_y_coef))
+            return (self.actor_net.apply_replay(act["net"], o),
+                    std_from_param(act["log_std"], cfg.std_x_coef, cfg.std_y_coef))
 
         def surrogates_of(out):
             mean, std = out
-            ratio = jnp.exp(pc.gaussian_log_prob(a, mean, std) - lo)
-            return -pc.masked_mean(ratio * f * ar, m), pc.masked_mean(ratio * f * ac, m)
+            ratio = jnp.exp(gaussian_log_prob(a, mean, std) - lo)
+            return -masked_mean(ratio * f * ar, m), masked_mean(ratio * f * ac, m)
 
         # both gradients from one forward pass
         (reward_loss, cost_loss), pullback = jax.vjp(lambda th: surrogates_of(policy_rev(th)), theta)
@@ -59,7 +59,7 @@ class MACPO(PPOBase):
 
         def kl_of(out):
             mean, std = out
-            return pc.masked_mean(pc.gaussian_kl(mean_old, std_old, mean, jnp.broadcast_to(std, mean.shape)), m)
+            return masked_mean(gaussian_kl(mean_old, std_old, mean, jnp.broadcast_to(std, mean.shape)), m)
 
         # the KL's Hessian at theta, J^T H_out J (the Fisher matrix; see cpo.gauss_newton_operator)
         fvp = cpo.gauss_newton_operator(policy_at, kl_of, theta, cfg.fvp_damping, reverse_fn=policy_rev)

@@ -6,7 +6,8 @@ Two agents, deterministic actors bounded by ``max_action * tanh``:
   ``stackelberg=False`` (plain MADDPG) ``a2 = mu2(o2)``.
 * per agent a centralized reward critic ``Q_i(s, a1, a2)`` and (``constrained=True``) cost critic
   ``G_i(s, a1, a2)``, stacked as ``[2 agents, K kinds]`` (acting and evaluation: batched einsums over the
-  stack; the update, on XLA:CPU: each network alone in the column layout of :mod:`jaxsmarl.columns`).
+  stack; the update: the networks' ``apply_update``, in the column layout each network alone,
+  :mod:`jaxsmarl.network`).
   ``critic_input="joint"``: ``s = [o1, o2]`` (paper: the global state); ``"own"``: ``s = o_i`` (the authors'
   critics, docs/algorithms.md).
 * Critic targets (Alg. 2, critic / cost-critic updates): ``y_i = r_i + gamma (1 - t_i) Q_i^targ(s', a1', a2')``,
@@ -36,18 +37,17 @@ batch's done fraction, :mod:`jaxsmarl.bootstrap`).
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Sequence
 from typing import Any
 
-import flax.linen as nn
 import flax.struct
 import jax
 import jax.numpy as jnp
 import optax
 
-from jaxsmarl import bootstrap, columns, networks
+from jaxsmarl import bootstrap, networks
+from jaxsmarl.actor import Actor, actor_columns, make_actor
 from jaxsmarl.lagrangian import Lagrangian
-from jaxsmarl.networks import _Dense
+from jaxsmarl.networks import critic_values, critic_values_columns, layer_name
 
 __all__ = ["MADDPGConfig", "MADDPGState", "MADDPGAgent", "Actor", "Transition", "critic_values",
            "critic_values_columns", "actor_columns"]
@@ -112,60 +112,6 @@ class MADDPGConfig:
         return self.obs_dim + (self.action_dim if self.stackelberg else 0)
 
 
-class Actor(nn.Module):
-    """Deterministic actor: MLP ``hidden`` with ReLU, output ``max_action * tanh`` (authors' ``Actor``)."""
-
-    hidden: Sequence[int] = (64, 64, 64)
-    action_dim: int = 1
-    max_action: float = 1.0
-    init_scheme: str = "torch"
-
-    @nn.compact
-    def __call__(self, x: jax.Array) -> jax.Array:
-        for h in self.hidden:
-            x = nn.relu(_Dense(h, self.init_scheme)(x))
-        return self.max_action * jnp.tanh(_Dense(self.action_dim, self.init_scheme)(x))
-
-
-def critic_values(params, x: jax.Array) -> jax.Array:
-    """Stacked critics (``[n, K, ...]`` :class:`jaxsmarl.networks.JointActionMLP` parameters) on per-agent inputs
-    ``x`` ``[R, n, D_in]`` (agent i's critics read ``x[:, i]``) -> ``[R, n, K]``."""
-    p = params["params"]
-    layers = [p[f"_Dense_{i}"] for i in range(len(p))]
-    h = jnp.einsum("rnd,nkdh->nkrh", x, layers[0]["kernel"]) + layers[0]["bias"][:, :, None]
-    for layer in layers[1:]:
-        h = jnp.einsum("nkrh,nkho->nkro", nn.relu(h), layer["kernel"]) + layer["bias"][:, :, None]
-    return jnp.moveaxis(h[..., 0], 2, 0)
-
-
-def critic_values_columns(params, x: jax.Array) -> jax.Array:
-    """:func:`critic_values` (the same function) with each critic run on its own in the column layout of
-    :mod:`jaxsmarl.columns`: faster reverse-mode gradients on XLA:CPU, no forward-mode derivative."""
-    p = params["params"]
-    layers = [p[f"_Dense_{i}"] for i in range(len(p))]
-    n, k = layers[0]["bias"].shape[:2]
-    out = []
-    for i in range(n):
-        xt = x[:, i].T  # [D_in, R]
-        for j in range(k):
-            net = [{name: w[i, j] for name, w in layer.items()} for layer in layers]
-            h = columns.dense(net[0], xt)
-            for layer in net[1:]:
-                h = columns.dense(layer, nn.relu(h))
-            out.append(h[0])
-    return jnp.stack(out, axis=-1).reshape((x.shape[0], n, k))
-
-
-def actor_columns(params, x: jax.Array, max_action: float) -> jax.Array:
-    """:class:`Actor` (the same function) in the column layout of :mod:`jaxsmarl.columns`: ``[B, D] -> [B, k]``."""
-    p = params["params"]
-    layers = [p[f"_Dense_{i}"] for i in range(len(p))]
-    h = x.T
-    for layer in layers[:-1]:
-        h = nn.relu(columns.dense(layer, h))
-    return (max_action * jnp.tanh(columns.dense(layers[-1], h))).T
-
-
 @flax.struct.dataclass
 class MADDPGState:
     actors: Any  # (leader params, follower params)
@@ -196,9 +142,13 @@ class MADDPGAgent:
 
     def __init__(self, config: MADDPGConfig):
         c = self.config = config
-        self.actor = Actor(tuple(c.hidden_sizes), c.action_dim, c.max_action, c.init)
-        self.critic = networks.JointActionMLP(hidden=tuple(c.hidden_sizes), init_scheme=c.init)
-        self.columns = columns.enabled()  # the update's networks in the column layout (XLA:CPU)
+        # the leader's and the follower's actor: one module, two input sizes
+        self.actor_nets = (make_actor(c.obs_dim, c.hidden_sizes, c.action_dim, c.max_action, c.init),
+                           make_actor(c.follower_in_dim, c.hidden_sizes, c.action_dim, c.max_action, c.init))
+        self.actor = self.actor_nets[LEADER]  # its apply serves either actor
+        self.critic = networks.JointActionMLP(hidden=tuple(c.hidden_sizes), init_scheme=c.init)  # one network
+        self.critic_stack = networks.make_critic_stack(c.critic_obs_dim, (c.action_dim, c.action_dim),
+                                                       c.hidden_sizes, c.init, shape=(2, c.n_kinds))
         self.actor_opt = optax.adam(c.lr_actor)
         self.critic_opt = optax.adam(c.lr_critic)
         self.lagrangian = Lagrangian(tuple(c.cost_threshold), c.lr_lambda, c.lambda_max, c.lambda_init,
@@ -207,12 +157,9 @@ class MADDPGAgent:
     # ---------------------------------------------------------------------------------------------
     def init(self, key: jax.Array) -> MADDPGState:
         """Online networks, identical target copies (Alg. 2 initialisation), Adam states, lambda_init."""
-        c = self.config
         k_crit, k_lead, k_fol = jax.random.split(key, 3)
-        critics = networks.init_stacked(self.critic, k_crit, c.critic_obs_dim, (c.action_dim, c.action_dim),
-                                        shape=(2, c.n_kinds))
-        actors = (self.actor.init(k_lead, jnp.zeros((1, c.obs_dim), jnp.float32)),
-                  self.actor.init(k_fol, jnp.zeros((1, c.follower_in_dim), jnp.float32)))
+        critics = self.critic_stack.init(k_crit)
+        actors = (self.actor_nets[LEADER].init(k_lead), self.actor_nets[FOLLOWER].init(k_fol))
         return MADDPGState(actors=actors, critics=critics, target_actors=actors, target_critics=critics,
                            actor_opt=self.actor_opt.init(actors), critic_opt=self.critic_opt.init(critics),
                            lam=self.lagrangian.init(), n_updates=jnp.int32(0))
@@ -224,18 +171,19 @@ class MADDPGAgent:
                           terminated=jnp.zeros((2,), bool), truncated=jnp.zeros((), bool))
 
     # ---------------------------------------------------------------------------------------------
-    def _actor(self, actor_params, x: jax.Array, columns: bool = False) -> jax.Array:
-        return actor_columns(actor_params, x, self.config.max_action) if columns else self.actor.apply(actor_params, x)
+    def _actor(self, who: int, actor_params, x: jax.Array, for_update: bool = False) -> jax.Array:
+        net = self.actor_nets[who]
+        return (net.apply_update if for_update else net.apply)(actor_params, x)
 
-    def leader_action(self, actor_params, obs_leader: jax.Array, columns: bool = False) -> jax.Array:
-        """``mu1(o1)``: ``[..., obs_dim]`` -> ``[..., action_dim]``. ``columns=True`` (a ``[B, obs_dim]`` batch):
-        the same actor in the column layout (:func:`actor_columns`), for the gradient steps."""
-        return self._actor(actor_params, obs_leader, columns)
+    def leader_action(self, actor_params, obs_leader: jax.Array, for_update: bool = False) -> jax.Array:
+        """``mu1(o1)``: ``[..., obs_dim]`` -> ``[..., action_dim]``. ``for_update=True`` (a ``[B, obs_dim]``
+        batch): the same actor in the form the gradient steps differentiate (``Network.apply_update``)."""
+        return self._actor(LEADER, actor_params, obs_leader, for_update)
 
-    def follower_action(self, actor_params, obs_follower: jax.Array, a1: jax.Array, columns: bool = False):
+    def follower_action(self, actor_params, obs_follower: jax.Array, a1: jax.Array, for_update: bool = False):
         """``mu2(o2, a1)`` (Stackelberg) or ``mu2(o2)`` (plain MADDPG)."""
         x = jnp.concatenate([obs_follower, a1], axis=-1) if self.config.stackelberg else obs_follower
-        return self._actor(actor_params, x, columns)
+        return self._actor(FOLLOWER, actor_params, x, for_update)
 
     def joint_action(self, actors, obs: jax.Array) -> jax.Array:
         """Greedy hierarchical decision ``[..., 2, D]`` -> ``[..., 2, action_dim]``."""
@@ -247,7 +195,7 @@ class MADDPGAgent:
         """The greedy decision's actor outputs before ``max_action * tanh``, ``[..., 2, action_dim]``. Where
         ``|x| >> 1`` the actor is saturated: ``tanh'(x) ~ 0`` passes almost no gradient back to it, a known way
         for DDPG to get stuck (``benchmarks/actor_saturation.py``)."""
-        last = f"_Dense_{len(self.config.hidden_sizes)}"
+        last = layer_name(len(self.config.hidden_sizes))
 
         def pre(params, x):
             _, st = self.actor.apply(params, x, capture_intermediates=lambda mdl, _: mdl.name == last)
@@ -267,11 +215,11 @@ class MADDPGAgent:
             return jnp.broadcast_to(x[:, None], (b, 2, x.shape[-1]))
         return jnp.concatenate([obs, jnp.broadcast_to(acts[:, None], (b, 2, acts.shape[-1]))], axis=-1)
 
-    def values(self, critics, obs: jax.Array, actions: jax.Array, columns: bool = False) -> jax.Array:
+    def values(self, critics, obs: jax.Array, actions: jax.Array, for_update: bool = False) -> jax.Array:
         """Critics at given joint actions: obs ``[B, 2, D]``, actions ``[B, 2, k]`` -> ``[B, 2, K]``
-        (``columns=True``: :func:`critic_values_columns`, the same values, faster in the update on XLA:CPU)."""
+        (``for_update=True``: the same values in the form the update uses, ``Network.apply_update``)."""
         x = self.critic_input(obs, actions[:, LEADER], actions[:, FOLLOWER])
-        return critic_values_columns(critics, x) if columns else critic_values(critics, x)
+        return (self.critic_stack.apply_update if for_update else self.critic_stack.apply)(critics, x)
 
     # ---------------------------------------------------------------------------------------------
     def exploration(self, env_step: jax.Array) -> dict:
@@ -306,7 +254,7 @@ class MADDPGAgent:
         """``[B, 2, K]``: ``(r_i, c_i) + gamma (1 - t_i) (Q_i^targ, G_i^targ)(s', mu^targ(s'))``."""
         c = self.config
         a_next = self.joint_action(state.target_actors, batch.next_obs)
-        boot = self.values(state.target_critics, batch.next_obs, a_next, columns=self.columns)
+        boot = self.values(state.target_critics, batch.next_obs, a_next, for_update=True)
         rc = jnp.stack([batch.reward, batch.cost][: c.n_kinds], axis=-1)
         keep = bootstrap.continuation(batch.terminated, batch.truncated, c.terminal_mask, c.bootstrap_on_truncation,
                                       rc.dtype)
@@ -322,15 +270,15 @@ class MADDPGAgent:
         """
         through = self.config.stackelberg if through_follower is None else through_follower
         critics = jax.lax.stop_gradient(critics)
-        a1 = self.leader_action(actors[LEADER], obs[:, LEADER], columns=self.columns)
+        a1 = self.leader_action(actors[LEADER], obs[:, LEADER], for_update=True)
         a1_fixed = jax.lax.stop_gradient(a1)
         a2_lead = self.follower_action(jax.lax.stop_gradient(actors[FOLLOWER]), obs[:, FOLLOWER],
-                                       a1 if through else a1_fixed, columns=self.columns)
-        a2_fol = self.follower_action(actors[FOLLOWER], obs[:, FOLLOWER], a1_fixed, columns=self.columns)
+                                       a1 if through else a1_fixed, for_update=True)
+        a2_fol = self.follower_action(actors[FOLLOWER], obs[:, FOLLOWER], a1_fixed, for_update=True)
         x_lead = self.critic_input(obs, a1, a2_lead)[:, LEADER]
         x_fol = self.critic_input(obs, a1_fixed, a2_fol)[:, FOLLOWER]
         x = jnp.stack([x_lead, x_fol], axis=1)
-        return critic_values_columns(critics, x) if self.columns else critic_values(critics, x)
+        return self.critic_stack.apply_update(critics, x)
 
     def actor_losses(self, actors, critics, lam: jax.Array, obs: jax.Array, through_follower: bool | None = None):
         """``([2] per-agent losses mean_B(-Q_i + pen_i(G_i)), [B, 2, K] values)``; minimising loss i over
@@ -343,7 +291,7 @@ class MADDPGAgent:
 
     def _loss(self, params, state: MADDPGState, batch: Transition, targets: jax.Array):
         critics, actors = params
-        pred = self.values(critics, batch.obs, batch.action, columns=self.columns)
+        pred = self.values(critics, batch.obs, batch.action, for_update=True)
         per_net = jnp.mean((pred - jax.lax.stop_gradient(targets)) ** 2, axis=0)  # [2, K]
         actor_loss, v = self.actor_losses(actors, critics, state.lam, batch.obs)
         return jnp.sum(per_net) + jnp.sum(actor_loss), (per_net, jnp.mean(pred, axis=0), actor_loss, v)

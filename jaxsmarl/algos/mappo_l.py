@@ -16,10 +16,11 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
-import optax
 
-from jaxsmarl import ppo_common as pc
 from jaxsmarl.algos.ppo_base import PPOBase, PPOState
+from jaxsmarl.gaussian import gaussian_entropy, gaussian_log_prob
+from jaxsmarl.gradients import gradient_update_fn
+from jaxsmarl.losses import masked_mean
 
 __all__ = ["MAPPOL", "lagrange_step"]
 
@@ -42,35 +43,30 @@ class MAPPOL(PPOBase):
             o, a, lo, ar, ac, f, m = (x[idx] for x in (obs, action, logp_old, adv_r, adv_c, factor, active))
 
             def loss(p):
-                mean, std = self.policy(p.tree() if self.columns else p, o, columns=self.columns)
-                ratio = jnp.exp(pc.gaussian_log_prob(a, mean, std) - lo)
+                mean, std = self.policy(p, o, for_update=True)
+                ratio = jnp.exp(gaussian_log_prob(a, mean, std) - lo)
                 adv = ar - lam * ac
                 surr = jnp.minimum(ratio * adv, jnp.clip(ratio, 1.0 - cfg.clip, 1.0 + cfg.clip) * adv)
-                ent = pc.gaussian_entropy(std)
-                return -pc.masked_mean(f * surr, m) - cfg.entropy_coef * ent, ratio
+                ent = gaussian_entropy(std)
+                return -masked_mean(f * surr, m) - cfg.entropy_coef * ent, ratio
 
-            (pl, ratio), grads = jax.value_and_grad(loss, has_aux=True)(actor)
-            upd, a_opt = self.actor_tx.update(grads, a_opt, actor)
-            actor = optax.apply_updates(actor, upd)
+            (pl, ratio), actor, a_opt = gradient_update_fn(loss, self.actor_tx, has_aux=True)(actor, a_opt)
             ratio = jax.lax.stop_gradient(ratio)
-            lam = lagrange_step(lam, jc, cfg.cost_limit, cfg.gamma, cfg.lambda_lr, pc.masked_mean(ratio * ac, m))
+            lam = lagrange_step(lam, jc, cfg.cost_limit, cfg.gamma, cfg.lambda_lr, masked_mean(ratio * ac, m))
             critic, c_opt, vl = self.critic_step(critic, c_opt, batch.share[idx], target[:, idx],
                                                  old_value[:, idx], m)
             return (actor, a_opt, critic, c_opt, lam), {"policy_loss": pl, "value_loss": vl,
-                                                       "ratio": pc.masked_mean(ratio, m)}
+                                                       "ratio": masked_mean(ratio, m)}
 
         def epoch(carry, k):
             return jax.lax.scan(minibatch, carry, self.minibatch_indices(k, n, cfg.num_minibatches))
 
-        actor, a_opt = ix(state.actor, i), ix(state.actor_opt, i)
-        if self.columns:  # one vector per network in the loop (see critics_for_loop)
-            actor, a_opt = pc.to_flat(actor, a_opt)
+        actor, a_opt = self.carry.pack(ix(state.actor, i), ix(state.actor_opt, i))
         carry = (actor, a_opt, *self.critics_for_loop(ix(state.critic, i), ix(state.critic_opt, i)),
                  state.lagrange[i])
         (actor, a_opt, critic, c_opt, lam), infos = jax.lax.scan(epoch, carry,
                                                                  jax.random.split(key, cfg.ppo_epochs))
-        if self.columns:
-            actor, a_opt = pc.from_flat(actor, a_opt)
+        actor, a_opt = self.carry.unpack(actor, a_opt)
         critic, c_opt = self.critics_from_loop(critic, c_opt)
         st = self.set_index
         state = state.replace(actor=st(state.actor, i, actor), actor_opt=st(state.actor_opt, i, a_opt),

@@ -33,9 +33,13 @@ import jax
 import jax.numpy as jnp
 import optax
 
-from jaxsmarl import columns
-from jaxsmarl import ppo_common as pc
 from jaxsmarl.gae import gae
+from jaxsmarl.gaussian import gaussian_log_prob, std_from_param
+from jaxsmarl.gradients import LoopCarry, gradient_update_fn
+from jaxsmarl.losses import standardize, value_loss
+from jaxsmarl.mlp import make_mlp
+from jaxsmarl.permutation import random_permutation
+from jaxsmarl.running_stats import RunningStats
 
 __all__ = ["PPOConfig", "PPOState", "Batch", "PPOBase"]
 
@@ -94,8 +98,8 @@ class PPOState:
     critic: Any  # MLP params stacked [n_agents, 2, ...]
     actor_opt: Any  # stacked [n_agents, ...] (MAPPO-L; unused by MACPO)
     critic_opt: Any  # stacked [n_agents, 2, ...]
-    obs_stats: pc.RunningStats  # [n_agents, obs_dim]
-    value_stats: pc.RunningStats  # [n_agents, 2]
+    obs_stats: RunningStats  # [n_agents, obs_dim]
+    value_stats: RunningStats  # [n_agents, 2]
     lagrange: jax.Array  # [n_agents] MAPPO-L multipliers
     episode_cost: jax.Array  # [n_agents] J_c of the last rollout with finished episodes
 
@@ -127,9 +131,9 @@ class PPOBase(abc.ABC):
 
     def __init__(self, config: PPOConfig):
         self.config = cfg = config
-        self.actor_net = pc.MLP(cfg.hidden, cfg.layer_n, cfg.action_dim, 0.01, cfg.feature_norm)
-        self.critic_net = pc.MLP(cfg.hidden, cfg.layer_n, 1, 1.0, cfg.feature_norm)
-        self.columns = columns.enabled()  # the actor loss and critic steps in the column layout (XLA:CPU)
+        self.actor_net = make_mlp(cfg.obs_dim, cfg.hidden, cfg.layer_n, cfg.action_dim, 0.01, cfg.feature_norm)
+        self.critic_net = make_mlp(cfg.share_dim, cfg.hidden, cfg.layer_n, 1, 1.0, cfg.feature_norm)
+        self.carry = LoopCarry(self.actor_net.layout)  # how networks travel through the minibatch loops
         self.actor_tx = optax.chain(optax.clip_by_global_norm(cfg.max_grad_norm),
                                     optax.adam(cfg.actor_lr, eps=cfg.adam_eps))
         self.critic_tx = optax.chain(optax.clip_by_global_norm(cfg.max_grad_norm),
@@ -143,17 +147,15 @@ class PPOBase(abc.ABC):
         dtype = jnp.zeros(()).dtype
 
         def actor_init(k):
-            net = self.actor_net.init(k, jnp.zeros((1, cfg.obs_dim), dtype))
-            return {"net": net, "log_std": jnp.full((cfg.action_dim,), cfg.std_x_coef, dtype)}
+            return {"net": self.actor_net.init(k), "log_std": jnp.full((cfg.action_dim,), cfg.std_x_coef, dtype)}
 
         actor = jax.vmap(actor_init)(jax.random.split(ka, n))
-        critic = jax.vmap(jax.vmap(lambda k: self.critic_net.init(k, jnp.zeros((1, cfg.share_dim), dtype))))(
-            jax.random.split(kc, (n, 2)))
+        critic = jax.vmap(jax.vmap(self.critic_net.init))(jax.random.split(kc, (n, 2)))
         return PPOState(
             actor=actor, critic=critic, actor_opt=jax.vmap(self.actor_tx.init)(actor),
             critic_opt=jax.vmap(jax.vmap(self.critic_tx.init))(critic),
-            obs_stats=pc.RunningStats.create((n, cfg.obs_dim), dtype),
-            value_stats=pc.RunningStats.create((n, 2), dtype),
+            obs_stats=RunningStats.create((n, cfg.obs_dim), dtype),
+            value_stats=RunningStats.create((n, 2), dtype),
             lagrange=jnp.full((n,), cfg.lambda_init, dtype), episode_cost=jnp.zeros((n,), dtype))
 
     # ------------------------------------------------------------------------------------------------------
@@ -168,18 +170,15 @@ class PPOBase(abc.ABC):
         """``obs [..., N, D]`` -> normalised (identity when ``obs_norm`` is off)."""
         return state.obs_stats.normalize(obs) if self.config.obs_norm else obs
 
-    def policy(self, actor_i, obs_n, columns: bool = False):
+    def policy(self, actor_i, obs_n, for_update: bool = False):
         """Mean ``[..., k]`` and std ``[k]`` of one agent's Gaussian on normalised observations.
 
-        ``columns=True`` (a ``[B, D]`` batch only) evaluates the same network with :func:`pc.mlp_columns`, whose
-        reverse-mode gradients are faster on XLA:CPU; it has no forward-mode derivative (``jax.jvp``).
+        ``for_update=True`` (a ``[B, D]`` batch only) evaluates the same network in the form the update
+        differentiates (``Network.apply_update``: reverse mode only in the column layout).
         """
         cfg = self.config
-        if columns:
-            mean = pc.mlp_columns(actor_i["net"], obs_n.T, cfg.layer_n, cfg.feature_norm).T
-        else:
-            mean = self.actor_net.apply(actor_i["net"], obs_n)
-        return mean, pc.std_from_param(actor_i["log_std"], cfg.std_x_coef, cfg.std_y_coef)
+        apply = self.actor_net.apply_update if for_update else self.actor_net.apply
+        return apply(actor_i["net"], obs_n), std_from_param(actor_i["log_std"], cfg.std_x_coef, cfg.std_y_coef)
 
     def _all_means(self, state, obs_n):
         """``obs_n [B, N, D]`` -> means ``[B, N, k]``, stds ``[N, k]``."""
@@ -190,7 +189,7 @@ class PPOBase(abc.ABC):
         """Sample ``[E, N, k]`` actions (unbounded Gaussian; the env clips to [-1, 1]) and their log-probs."""
         mean, std = self._all_means(state, self.normalize_obs(state, obs))
         action = mean + std * jax.random.normal(key, mean.shape, mean.dtype)
-        return action, pc.gaussian_log_prob(action, mean, std)
+        return action, gaussian_log_prob(action, mean, std)
 
     def greedy_act(self, state: PPOState, obs):
         """The Gaussian mean, clipped to the action box, for one ``[N, D]`` observation."""
@@ -200,18 +199,7 @@ class PPOBase(abc.ABC):
     def values(self, critic, value_stats, share):
         """Denormalised ``[..., N, 2]`` values of every critic at ``share [..., N*D]``."""
         flat = share.reshape((-1, share.shape[-1]))
-        if self.columns:
-            cfg = self.config
-            n_agents, n_critics = jax.tree.leaves(critic)[0].shape[:2]
-            nets = [[_index(_index(critic, i), k) for k in range(n_critics)] for i in range(n_agents)]
-
-            def part(x):  # [chunk, D] -> [chunk, N, 2], the critics one after the other in the column layout
-                return jnp.stack([jnp.stack([pc.mlp_columns(net, x.T, cfg.layer_n, cfg.feature_norm)[0]
-                                             for net in row], -1) for row in nets], -2)
-
-            out = jnp.moveaxis(columns.in_chunks(part, flat), 0, -1)  # [N, 2, B]
-        else:
-            out = jax.vmap(jax.vmap(lambda p: self.critic_net.apply(p, flat)[:, 0]))(critic)  # [N, 2, B]
+        out = self.critic_net.apply_stack(critic, flat)[..., 0]  # [N, 2, B]
         out = jnp.moveaxis(out, -1, 0).reshape(share.shape[:-1] + out.shape[:2])
         return value_stats.denormalize(out) if self.config.value_norm else out
 
@@ -238,7 +226,7 @@ class PPOBase(abc.ABC):
         B = T * E
         flat = lambda x: jnp.moveaxis(x.reshape((B,) + x.shape[2:]), 1, 0)  # [T, E, N, ...] -> [N, B, ...]
         adv_f, active_f = flat(adv), flat(active)  # [N, B, 2], [N, B]
-        adv_f = jax.vmap(jax.vmap(pc.standardize, in_axes=(1, None), out_axes=0))(adv_f, active_f)  # [N, 2, B]
+        adv_f = jax.vmap(jax.vmap(standardize, in_axes=(1, None), out_axes=0))(adv_f, active_f)  # [N, 2, B]
         batch = Batch(obs=flat(obs_n), share=share.reshape(B, N * D), action=flat(traj.action),
                       logp=flat(traj.logp), adv=adv_f, target=jnp.moveaxis(flat(target), -1, 1),
                       old_value=jnp.moveaxis(flat(old_value), -1, 1), active=active_f)
@@ -254,52 +242,30 @@ class PPOBase(abc.ABC):
 
     # ------------------------------------------------------------------------------------------------------
     def critic_step(self, critic_i, opt_i, share, target, old_value, active):
-        """One clipped-Huber regression step of agent i's reward and cost critics (separate Adams, grad clips).
-
-        ``critic_i`` / ``opt_i`` in the form of :meth:`critics_for_loop`. With ``self.columns`` (XLA:CPU) the two
-        critics run one after the other through :func:`pc.mlp_columns` (a ``vmap`` over them turns every product
-        into a batched one, which runs slower there than two plain ones); otherwise vmapped, in the row layout."""
+        """One clipped-Huber regression step of agent i's reward and cost critics (separate Adams, grad clips),
+        ``critic_i`` / ``opt_i`` packed by :meth:`critics_for_loop`; returns ``(critic_i, opt_i, losses [2])``."""
         cfg = self.config
-        share_t = share.T if self.columns else None
 
-        def one(p, o, tgt, old):
-            def loss(p):
-                if self.columns:
-                    pred = pc.mlp_columns(p.tree(), share_t, cfg.layer_n, cfg.feature_norm)[0]
-                else:
-                    pred = self.critic_net.apply(p, share)[:, 0]
-                return cfg.value_loss_coef * pc.value_loss(pred, old, tgt, active, cfg.value_clip, cfg.huber_delta)
+        def loss(p, tgt, old, share, active):
+            pred = self.critic_net.apply_update(p, share)[:, 0]
+            return cfg.value_loss_coef * value_loss(pred, old, tgt, active, cfg.value_clip, cfg.huber_delta)
 
-            val, grads = jax.value_and_grad(loss)(p)
-            upd, o = self.critic_tx.update(grads, o, p)
-            return optax.apply_updates(p, upd), o, val
-
-        if not self.columns:
-            return jax.vmap(one)(critic_i, opt_i, target, old_value)
-        outs = [one(critic_i[k], opt_i[k], target[k], old_value[k]) for k in range(len(critic_i))]
-        return tuple(o[0] for o in outs), tuple(o[1] for o in outs), jnp.stack([o[2] for o in outs])
+        vals, critic_i, opt_i = self.carry.update_stack(gradient_update_fn(loss, self.critic_tx), critic_i, opt_i,
+                                                        (target, old_value), (share, active))
+        return critic_i, opt_i, vals
 
     def critics_for_loop(self, critic, opt):
         """Agent i's stacked ``[2, ...]`` critics and optimiser states in the form :meth:`critic_step` carries
-        through the minibatch loop: with ``self.columns`` tuples of the two, each as :class:`pc.Flat` vectors
-        (taking each critic out of the stack and stacking the new ones back at every step, and per-array Adam
-        steps, cost time on XLA:CPU), otherwise the stacked trees themselves.
-        :meth:`critics_from_loop` is the inverse."""
-        if not self.columns:
-            return critic, opt
-        pairs = [pc.to_flat(_index(critic, k), _index(opt, k)) for k in range(jax.tree.leaves(critic)[0].shape[0])]
-        return tuple(p for p, _ in pairs), tuple(o for _, o in pairs)
+        through the minibatch loop (:class:`jaxsmarl.gradients.LoopCarry`); :meth:`critics_from_loop` is the
+        inverse."""
+        return self.carry.pack_stack(critic, opt)
 
     def critics_from_loop(self, critic, opt):
-        if not self.columns:
-            return critic, opt
-        pairs = [pc.from_flat(p, o) for p, o in zip(critic, opt)]
-        stack = lambda *a: jnp.stack(a)
-        return jax.tree.map(stack, *(p for p, _ in pairs)), jax.tree.map(stack, *(o for _, o in pairs))
+        return self.carry.unpack_stack(critic, opt)
 
     def log_prob(self, actor_i, obs, action):
         mean, std = self.policy(actor_i, obs)
-        return pc.gaussian_log_prob(action, mean, std)
+        return gaussian_log_prob(action, mean, std)
 
     @abc.abstractmethod
     def agent_update(self, state: PPOState, i, batch: Batch, factor, key):
@@ -320,8 +286,7 @@ class PPOBase(abc.ABC):
             if cfg.sequential:
                 actor_i = _index(st.actor, i)
                 log_prob = lambda o, a: self.log_prob(actor_i, o, a)
-                new_logp = (columns.in_chunks(log_prob, batch.obs[i], batch.action[i]) if self.columns
-                            else log_prob(batch.obs[i], batch.action[i]))
+                new_logp = self.actor_net.rollout(log_prob, batch.obs[i], batch.action[i])
                 ratio = jnp.where(batch.active[i], jnp.exp(new_logp - batch.logp[i]), 1.0)
                 factor = factor * jax.lax.stop_gradient(ratio)
             return (st, factor), (i, info)
@@ -344,5 +309,5 @@ class PPOBase(abc.ABC):
     @staticmethod
     def minibatch_indices(key, n: int, num_minibatches: int):
         """A random partition of ``range(n)`` into ``[num_minibatches, n // num_minibatches]``
-        (:func:`jaxsmarl.ppo_common.random_permutation`)."""
-        return pc.random_permutation(key, n).reshape(num_minibatches, n // num_minibatches)
+        (:func:`jaxsmarl.permutation.random_permutation`)."""
+        return random_permutation(key, n).reshape(num_minibatches, n // num_minibatches)
