@@ -425,3 +425,32 @@ def test_fuzzer_counts_non_finite_steps():
     assert res["steps"] == 64 and res["bad_steps"] == res["bad_by_output"]["reward"] >= 32
     assert res["bad_by_output"]["cost"] == res["bad_by_output"]["state"] == 0
     assert fuzz_env.fuzz(env, 64, 8, 8, 0)["bad_steps"] == 0
+
+
+class _Planted:
+    """An env that puts a NaN into the last float of its returned state and of its observation at every step."""
+
+    def __init__(self, env):
+        self.env = env
+
+    def __getattr__(self, name):
+        return getattr(self.env, name)
+
+    def step(self, key, state, action, params=None):
+        obs, st, reward, cost, done, info = self.env.step(key, state, action, params)
+        return obs.at[-1, -1].set(jnp.nan), st.replace(y=st.y.at[-1].set(jnp.nan)), reward, cost, done, info
+
+
+def test_fuzzer_counts_every_step_with_a_planted_non_finite_value():
+    # a NaN in one float of the last vehicle's state and of the last agent's observation, at every step: every
+    # step is counted, under those two outputs only, across segments (3 segments of 4 envs x 4 steps)
+    import importlib.util
+
+    import envs_jax
+
+    spec = importlib.util.spec_from_file_location("fuzz_env", os.path.join(ROOT, "benchmarks", "fuzz_env.py"))
+    fuzz_env = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(fuzz_env)
+    res = fuzz_env.fuzz(_Planted(envs_jax.make("merge")), 48, 4, 4, 0)
+    assert res["steps"] == 48 and res["complete"] and res["bad_steps"] == 48
+    assert res["bad_by_output"] == {"state": 48, "observation": 48, "reward": 0, "cost": 0}
