@@ -404,6 +404,47 @@ def test_environment_parameters_at_the_edge_of_their_range_are_accepted():
     assert env.default_params.duration == 0.5
 
 
+NAN, INF = float("nan"), float("inf")
+
+
+@pytest.mark.parametrize("task, overrides, match", [
+    ("highway-v0", {"collision_cost": -1.0}, r"collision_cost is a cost and must be >= 0, got -1.0"),
+    ("merge-v0", {"collision_cost": -5.0}, r"collision_cost is a cost and must be >= 0"),
+    ("roundabout-v0", {"collision_cost": -0.1}, r"collision_cost is a cost and must be >= 0"),
+    ("intersection-v0", {"collision_cost": -2.0}, r"collision_cost is a cost and must be >= 0"),
+    ("racetrack-v0", {"lane_centering_cost": -4.0}, r"lane_centering_cost is a cost and must be >= 0"),
+    ("highway-v0", {"reward_speed_range": [20.0, NAN]}, r"reward_speed_range must be \[low, high\] of finite"),
+    ("merge-v0", {"reward_speed_range": [-INF, 30.0]}, r"reward_speed_range must be \[low, high\] of finite"),
+    ("intersection-v0", {"reward_speed_range": [7.0, INF]}, r"reward_speed_range must be \[low, high\] of finite"),
+    ("merge-v0", {"idm": {"comfort_acc_min": 1.0}}, r"idm comfort_acc_min is a deceleration .* must be < 0"),
+    ("roundabout-v0", {"idm": {"distance_wanted": -1.0}}, r"idm distance_wanted is a jam distance in metres "
+                                                            r"and must be >= 0, got -1.0"),
+    ("intersection-v0", {"idm": {"time_wanted": -1.5}}, r"idm time_wanted is a time gap in seconds and must be >= 0"),
+    ("racetrack-v0", {"idm": {"politeness": 2.0}}, r"idm politeness is a weight in \[0, 1\] and must be >= 0 and <= 1"),
+    ("highway-v0", {"idm": {"acc_max": 0.0}}, r"idm acc_max is an acceleration in m/s\^2 and must be > 0"),
+    ("highway-fast-v0", {"idm": {"delta": NAN}}, r"idm delta is an exponent and must be > 0, got nan"),
+    ("highway-fast-v0", {"idm": {"delta_range": (4.5, 3.5)}}, r"idm delta_range must be \(low, high\) .* 0 < low <= high"),
+])
+def test_traffic_task_parameters_outside_their_physical_range(task, overrides, match):
+    # highway-env's tasks take costs, the reward's speed range and the IDM drivers' constants; a negative
+    # comfort deceleration, for one, puts a NaN into every driver's desired gap (its sqrt(-a_max * b_min))
+    import envs_jax
+
+    with pytest.raises(ValueError, match=f"{task}: {match}"):
+        envs_jax.make(task, **overrides)
+
+
+def test_traffic_task_parameters_at_the_edge_of_their_range_are_accepted():
+    import envs_jax
+
+    env = envs_jax.make("racetrack-v0", collision_cost=0.0, offroad_cost=0.0, lane_centering_cost=0.0,
+                        idm={"politeness": 1.0, "distance_wanted": 0.0, "time_wanted": 0.0, "lane_change_delay": 0.0})
+    assert env.default_params.idm.politeness == 1.0 and env.default_params.lane_centering_cost == 0.0
+    env = envs_jax.make("highway-v0", collision_cost=0.0, reward_speed_range=[30, 20],
+                        idm={"delta_range": (4.0, 4.0), "politeness": 0.0})
+    assert env.default_params.reward_speed_range == (30.0, 20.0) and env.default_params.collision_cost == 0.0
+
+
 def test_fuzzer_counts_non_finite_steps():
     # benchmarks/fuzz_env.py's counter, on an env whose reward is NaN at every step (params set past make()'s
     # checks) and on the same env as shipped; its adversarial actions hold NaN, infinities and huge values
