@@ -20,6 +20,7 @@ import pytest
 
 from jaxsmarl import buffers, metrics
 from jaxsmarl.checkpoints import Checkpointer
+from jaxsmarl.learner_log import LearnerLog
 from train import __main__ as cli
 from train.config import load_config
 from train.run import run
@@ -216,6 +217,17 @@ def test_metrics_files_are_never_half_written(tmp_path):
         with pytest.raises(OSError, match="File too large"):
             log.write_csv(csv_path)
     assert open(csv_path).read() == before and sorted(os.listdir(tmp_path)) == ["episodes.csv", "summary.json"]
+    learner = LearnerLog([{"seed": 0, "env_steps": 100, "agent": i, "lambda": 0.5, "cost_estimate": ""}
+                          for i in range(2)])
+    learner_path = tmp_path / "learner.csv"
+    learner.write_csv(learner_path)
+    before = open(learner_path).read()
+    learner.rows += [dict(learner.rows[0], env_steps=100 * k) for k in range(2, 3000)]
+    with _FileSizeLimit(len(before) + 10):
+        with pytest.raises(OSError, match="File too large"):
+            learner.write_csv(learner_path)
+    assert open(learner_path).read() == before
+    assert sorted(os.listdir(tmp_path)) == ["episodes.csv", "learner.csv", "summary.json"]
 
 
 # ---------------------------------------------------------------------------------------------------------
