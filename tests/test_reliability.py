@@ -438,8 +438,8 @@ NAN, INF = float("nan"), float("inf")
     ("highway-fast-v0", {"idm": {"delta_range": (4.5, 3.5)}}, r"idm delta_range must be \(low, high\) .* 0 < low <= high"),
 ])
 def test_traffic_task_parameters_outside_their_physical_range(task, overrides, match):
-    # highway-env's tasks take costs, the reward's speed range and the IDM drivers' constants; a negative
-    # comfort deceleration, for one, puts a NaN into every driver's desired gap (its sqrt(-a_max * b_min))
+    # highway-env's tasks take costs, the reward's speed range and the IDM drivers' constants; a comfort
+    # deceleration that is not negative, for one, makes every driver's desired gap non-finite (sqrt(-a_max b_min))
     import envs_jax
 
     with pytest.raises(ValueError, match=f"{task}: {match}"):
