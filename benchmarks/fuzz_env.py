@@ -82,9 +82,8 @@ def make_segment(env, num_envs: int, num_steps: int):
     """Jitted ``key -> counts[6]``: ``num_envs`` freshly reset envs run ``num_steps`` adversarial steps.
 
     Counts: steps with a non-finite state, observation, reward, cost; steps with any of them; episodes ended.
-    The envs are reset inside the compiled call rather than carried over from the previous one: XLA then
-    compiles the loop for states it builds itself, which steps faster than a state passed in from the host
-    (``docs/reliability.md``); an episode still running at the end of a segment is cut short there.
+    The envs are reset inside the compiled call, so no state is held between calls (a run can stop after any
+    segment); an episode still running at the end of a segment is cut short there (``docs/reliability.md``).
     """
     params = env.default_params
     act = adversarial_actions(env)
