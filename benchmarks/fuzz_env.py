@@ -1,7 +1,8 @@
 """Fuzz the simulator with adversarial actions and count steps that produce a non-finite number.
 
-Every scenario runs ``--envs`` auto-resetting environments inside one jitted ``lax.scan`` per chunk, with
-actions drawn afresh for every agent and step:
+Every scenario runs ``--envs`` auto-resetting environments inside one jitted ``lax.scan`` per segment of
+``--segment-steps`` steps (each segment starts from fresh resets), with actions drawn afresh for every agent
+and step:
 
 * merge, roundabout (discrete meta-actions 0..4): half uniform in 0..4, half out of range (any int32,
   including INT32_MIN / INT32_MAX, -1 and 5);
@@ -10,10 +11,12 @@ actions drawn afresh for every agent and step:
 
 A step counts as bad when any floating-point number it produces is not finite: any field of the state it
 returns (before the auto-reset), the observation, the reward or the cost. The counts, the rate and the run's
-size are printed and written to ``benchmarks/results/fuzz_env.json``.
+size are printed and written to ``benchmarks/results/fuzz_env.json`` (also during a scenario, at most once a
+minute, marked ``"complete": false``).
 
     python benchmarks/fuzz_env.py                          # 10^8 steps per scenario
     python benchmarks/fuzz_env.py --steps 1000000 --scenarios merge racetrack
+    python benchmarks/fuzz_env.py --max-seconds 600      # as many steps per scenario as fit in ~10 minutes
 """
 
 from __future__ import annotations
@@ -75,8 +78,13 @@ def _not_finite(tree) -> jax.Array:
     return jnp.any(jnp.stack(flags)) if flags else jnp.zeros((), bool)
 
 
-def make_chunk(env, num_envs: int, num_steps: int):
-    """Jitted ``(key, obs, state) -> (obs, state, counts)`` for ``num_steps`` steps of ``num_envs`` envs."""
+def make_segment(env, num_envs: int, num_steps: int):
+    """Jitted ``key -> counts[6]``: ``num_envs`` freshly reset envs run ``num_steps`` adversarial steps.
+
+    Counts: steps with a non-finite state, observation, reward, cost; steps with any of them; episodes ended.
+    The envs are reset inside the compiled call, so no state is held between calls (a run can stop after any
+    segment); an episode still running at the end of a segment is cut short there (``docs/reliability.md``).
+    """
     params = env.default_params
     act = adversarial_actions(env)
 
@@ -86,13 +94,15 @@ def make_chunk(env, num_envs: int, num_steps: int):
         obs2, st2, reward, cost, done, _ = env.step(k_step, state, action, params)
         bad = jnp.stack([_not_finite(st2), _not_finite(obs2), _not_finite(reward), _not_finite(cost)])
         obs_r, st_r = env.reset(k_reset, params)
-        st_next = jax.tree.map(lambda a, b: jnp.where(done, a, b), st_r, st2)
-        obs_next = jnp.where(done, obs_r, obs2)
-        # a non-finite state is not carried on (it would count every later step of that env as bad too)
-        st_next = jax.tree.map(lambda a, b: jnp.where(bad[0], a, b), st_r, st_next)
-        return obs_next, st_next, bad, done
+        # a non-finite state is not carried on either (it would count every later step of that env as bad too)
+        fresh = done | bad[0]
+        st_next = jax.tree.map(lambda a, b: jnp.where(fresh, a, b), st_r, st2)
+        return jnp.where(fresh, obs_r, obs2), st_next, bad, done
 
-    def chunk(key, obs, state):
+    def segment(key):
+        key_reset, key_steps = jax.random.split(key)
+        obs, state = jax.vmap(env.reset, in_axes=(0, None))(jax.random.split(key_reset, num_envs), params)
+
         def body(carry, k):
             obs, state, counts = carry
             obs, state, bad, done = jax.vmap(one_env)(jax.random.split(k, num_envs), obs, state)
@@ -100,42 +110,57 @@ def make_chunk(env, num_envs: int, num_steps: int):
                                                jnp.sum(done)[None]]).astype(jnp.int32)
             return (obs, state, counts), None
 
-        (obs, state, counts), _ = jax.lax.scan(body, (obs, state, jnp.zeros(6, jnp.int32)),
-                                               jax.random.split(key, num_steps))
-        return obs, state, counts
+        (_, _, counts), _ = jax.lax.scan(body, (obs, state, jnp.zeros(6, jnp.int32)),
+                                         jax.random.split(key_steps, num_steps))
+        return counts
 
-    return jax.jit(chunk, donate_argnums=(1, 2))
+    return jax.jit(segment)
 
 
-def fuzz(name, total_steps: int, num_envs: int, chunk_steps: int, seed: int) -> dict:
-    """Counts for ``total_steps`` adversarial steps of scenario ``name`` (or of a given env)."""
+def fuzz(name, total_steps: int, num_envs: int, segment_steps: int, seed: int, max_seconds: float | None = None,
+         progress=None) -> dict:
+    """Counts for ``total_steps`` adversarial steps of scenario ``name`` (or of a given env), in segments of
+    ``num_envs`` x ``segment_steps`` steps; stops after the segment that passes ``max_seconds`` (if given).
+    ``progress(result)`` is called with the counts so far after every segment."""
     env = envs_jax.make(name) if isinstance(name, str) else name
     num_envs = min(num_envs, total_steps)
-    chunk_steps = max(1, min(chunk_steps, total_steps // num_envs))
-    n_chunks = math.ceil(total_steps / (num_envs * chunk_steps))
-    run = make_chunk(env, num_envs, chunk_steps)
+    segment_steps = max(1, min(segment_steps, total_steps // num_envs))
+    n_segments = math.ceil(total_steps / (num_envs * segment_steps))
+    run = make_segment(env, num_envs, segment_steps)
     key = jax.random.PRNGKey(seed)
-    key, k0 = jax.random.split(key)
-    obs, state = jax.vmap(env.reset, in_axes=(0, None))(jax.random.split(k0, num_envs), env.default_params)
     counts = np.zeros(6, np.int64)
-    t0 = time.perf_counter()
-    for i in range(n_chunks):
-        obs, state, c = run(jax.random.fold_in(key, i), obs, state)
-        counts += np.asarray(c, np.int64)
+    t0, c0 = time.perf_counter(), time.process_time()
+    t_first = 0.0
+    done = 0
+    res = {}
+    for i in range(n_segments):
+        counts += np.asarray(run(jax.random.fold_in(key, i)), np.int64)
+        done = i + 1
+        wall = time.perf_counter() - t0
         if i == 0:
-            t_first = time.perf_counter() - t0
-    wall = time.perf_counter() - t0
-    steps = n_chunks * num_envs * chunk_steps
-    names = ("state", "observation", "reward", "cost")
-    res = {"steps": steps, "num_envs": num_envs, "chunk_steps": chunk_steps, "episodes_ended": int(counts[5]),
-           "bad_steps": int(counts[4]), "bad_rate": float(counts[4]) / steps,
-           "bad_by_output": {n: int(counts[j]) for j, n in enumerate(names)},
-           "seconds": wall, "first_chunk_s_with_compile": t_first,
-           "steps_per_s": steps / max(wall - t_first, 1e-9) * (n_chunks - 1) / n_chunks if n_chunks > 1 else None,
-           "actions": "discrete: 1/2 uniform 0..4, 1/4 any int32, 1/4 of {INT32_MIN, INT32_MAX, -1, 5}"
-                      if env.discrete else "continuous: 1/9 each of U[-1,1], U[-1e3,1e3], NaN, +inf, -inf, "
-                                           "+1e30, -1e30, float max, smallest subnormal"}
+            t_first = wall
+        res = _result(env, counts, done * num_envs * segment_steps, num_envs, segment_steps, wall, t_first,
+                      time.process_time() - c0, done == n_segments)
+        if progress is not None:
+            progress(res)
+        if max_seconds is not None and wall >= max_seconds:
+            break
     return res
+
+
+def _result(env, counts, steps, num_envs, segment_steps, wall, t_first, cpu, complete) -> dict:
+    """The JSON record of one scenario's counts so far."""
+    names = ("state", "observation", "reward", "cost")
+    later = steps - num_envs * segment_steps  # steps after the first segment, which includes compilation
+    return {"steps": steps, "complete": complete, "num_envs": num_envs, "segment_steps": segment_steps,
+            "episodes_ended": int(counts[5]), "bad_steps": int(counts[4]), "bad_rate": float(counts[4]) / steps,
+            "bad_by_output": {n: int(counts[j]) for j, n in enumerate(names)},
+            "seconds": wall, "cpu_seconds": cpu, "first_segment_s_with_compile": t_first,
+            "steps_per_s": later / (wall - t_first) if later > 0 else None,
+            "load_avg_1min": os.getloadavg()[0],
+            "actions": "discrete: 1/2 uniform 0..4, 1/4 any int32, 1/4 of {INT32_MIN, INT32_MAX, -1, 5}"
+                       if env.discrete else "continuous: 1/9 each of U[-1,1], U[-1e3,1e3], NaN, +inf, -inf, "
+                                            "+1e30, -1e30, float max, smallest subnormal"}
 
 
 def main(argv=None) -> int:
@@ -143,28 +168,43 @@ def main(argv=None) -> int:
     p.add_argument("--steps", type=float, default=1e8, help="random steps per scenario (default 1e8)")
     p.add_argument("--scenarios", nargs="+", default=list(SCENARIOS), choices=SCENARIOS)
     p.add_argument("--envs", type=int, default=4096, help="parallel environments (default 4096)")
-    p.add_argument("--chunk-steps", type=int, default=128, help="policy steps per compiled call (default 128)")
+    p.add_argument("--segment-steps", type=int, default=1024,
+                   help="policy steps per compiled call, from fresh resets (default 1024)")
+    p.add_argument("--max-seconds", type=float, default=None,
+                   help="per scenario: stop after the segment that passes this many seconds (default: no limit)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", default=OUT, help="JSON results file (default benchmarks/results/fuzz_env.json)")
     a = p.parse_args(argv)
     total = int(a.steps)
-    if total < 1 or a.envs < 1 or a.chunk_steps < 1:
-        p.error("--steps, --envs and --chunk-steps must be >= 1")
+    if total < 1 or a.envs < 1 or a.segment_steps < 1:
+        p.error("--steps, --envs and --segment-steps must be >= 1")
+    if a.max_seconds is not None and not a.max_seconds > 0:
+        p.error("--max-seconds must be > 0")
     out = {"machine": {"platform": platform.platform(), "cpus": os.cpu_count(), "jax": jax.__version__,
                        "device": str(jax.devices()[0]), "x64": bool(jax.config.jax_enable_x64)},
            "command": " ".join(["python benchmarks/fuzz_env.py"] + (argv if argv is not None else sys.argv[1:])),
            "scenarios": {}}
-    for name in a.scenarios:
-        res = fuzz(name, total, a.envs, a.chunk_steps, a.seed)
+    os.makedirs(os.path.dirname(os.path.abspath(a.out)), exist_ok=True)
+    last_write = [0.0]
+
+    def write(name, res, force=False):
+        # rewritten during a scenario too (at most once a minute): a run cut short keeps what it counted
         out["scenarios"][name] = res
+        if force or time.monotonic() - last_write[0] >= 60:
+            with open(a.out + ".tmp", "w") as f:
+                json.dump(out, f, indent=2)
+            os.replace(a.out + ".tmp", a.out)
+            last_write[0] = time.monotonic()
+
+    for name in a.scenarios:
+        res = fuzz(name, total, a.envs, a.segment_steps, a.seed, a.max_seconds, lambda r, name=name: write(name, r))
+        write(name, res, force=True)
         b = res["bad_by_output"]
+        rate = f"{res['steps_per_s']:,.0f} steps/s" if res["steps_per_s"] else "rate n/a (one segment)"
         print(f"{name:<12} {res['steps']:>12,} steps  bad {res['bad_steps']:,} (rate {res['bad_rate']:.3g}; state "
               f"{b['state']}, obs {b['observation']}, reward {b['reward']}, cost {b['cost']})  "
-              f"{res['episodes_ended']:,} episodes  {res['seconds']:.0f} s", flush=True)
-        os.makedirs(os.path.dirname(os.path.abspath(a.out)), exist_ok=True)
-        with open(a.out + ".tmp", "w") as f:  # after every scenario: a run cut short keeps what it measured
-            json.dump(out, f, indent=2)
-        os.replace(a.out + ".tmp", a.out)
+              f"{res['episodes_ended']:,} episodes  {res['seconds']:.0f} s  {rate}  load {res['load_avg_1min']:.1f}",
+              flush=True)
     return 0
 
 

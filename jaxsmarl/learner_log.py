@@ -17,6 +17,8 @@ from typing import Any
 
 import numpy as np
 
+from jaxsmarl.metrics import atomic_open
+
 __all__ = ["FIELDS", "SOURCES", "chunk_rows", "LearnerLog"]
 
 FIELDS = ("lambda", "cost_estimate")
@@ -73,12 +75,10 @@ class LearnerLog:
     def write_csv(self, path: str | os.PathLike) -> None:
         if not self.rows:
             return
-        tmp = f"{path}.tmp"
-        with open(tmp, "w", newline="") as f:
+        with atomic_open(path, newline="") as f:  # flushed to disk; a failed write leaves no temporary file
             w = csv.DictWriter(f, fieldnames=list(self.COLUMNS))
             w.writeheader()
             w.writerows(self.rows)
-        os.replace(tmp, path)
 
     @classmethod
     def read_csv(cls, path: str | os.PathLike) -> "LearnerLog":

@@ -20,6 +20,7 @@ import pytest
 
 from jaxsmarl import buffers, metrics
 from jaxsmarl.checkpoints import Checkpointer
+from jaxsmarl.learner_log import LearnerLog
 from train import __main__ as cli
 from train.config import load_config
 from train.run import run
@@ -216,6 +217,17 @@ def test_metrics_files_are_never_half_written(tmp_path):
         with pytest.raises(OSError, match="File too large"):
             log.write_csv(csv_path)
     assert open(csv_path).read() == before and sorted(os.listdir(tmp_path)) == ["episodes.csv", "summary.json"]
+    learner = LearnerLog([{"seed": 0, "env_steps": 100, "agent": i, "lambda": 0.5, "cost_estimate": ""}
+                          for i in range(2)])
+    learner_path = tmp_path / "learner.csv"
+    learner.write_csv(learner_path)
+    before = open(learner_path).read()
+    learner.rows += [dict(learner.rows[0], env_steps=100 * k) for k in range(2, 3000)]
+    with _FileSizeLimit(len(before) + 10):
+        with pytest.raises(OSError, match="File too large"):
+            learner.write_csv(learner_path)
+    assert open(learner_path).read() == before
+    assert sorted(os.listdir(tmp_path)) == ["episodes.csv", "learner.csv", "summary.json"]
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -404,6 +416,47 @@ def test_environment_parameters_at_the_edge_of_their_range_are_accepted():
     assert env.default_params.duration == 0.5
 
 
+NAN, INF = float("nan"), float("inf")
+
+
+@pytest.mark.parametrize("task, overrides, match", [
+    ("highway-v0", {"collision_cost": -1.0}, r"collision_cost is a cost and must be >= 0, got -1.0"),
+    ("merge-v0", {"collision_cost": -5.0}, r"collision_cost is a cost and must be >= 0"),
+    ("roundabout-v0", {"collision_cost": -0.1}, r"collision_cost is a cost and must be >= 0"),
+    ("intersection-v0", {"collision_cost": -2.0}, r"collision_cost is a cost and must be >= 0"),
+    ("racetrack-v0", {"lane_centering_cost": -4.0}, r"lane_centering_cost is a cost and must be >= 0"),
+    ("highway-v0", {"reward_speed_range": [20.0, NAN]}, r"reward_speed_range must be \[low, high\] of finite"),
+    ("merge-v0", {"reward_speed_range": [-INF, 30.0]}, r"reward_speed_range must be \[low, high\] of finite"),
+    ("intersection-v0", {"reward_speed_range": [7.0, INF]}, r"reward_speed_range must be \[low, high\] of finite"),
+    ("merge-v0", {"idm": {"comfort_acc_min": 1.0}}, r"idm comfort_acc_min is a deceleration .* must be < 0"),
+    ("roundabout-v0", {"idm": {"distance_wanted": -1.0}}, r"idm distance_wanted is a jam distance in metres "
+                                                            r"and must be >= 0, got -1.0"),
+    ("intersection-v0", {"idm": {"time_wanted": -1.5}}, r"idm time_wanted is a time gap in seconds and must be >= 0"),
+    ("racetrack-v0", {"idm": {"politeness": 2.0}}, r"idm politeness is a weight in \[0, 1\] and must be >= 0 and <= 1"),
+    ("highway-v0", {"idm": {"acc_max": 0.0}}, r"idm acc_max is an acceleration in m/s\^2 and must be > 0"),
+    ("highway-fast-v0", {"idm": {"delta": NAN}}, r"idm delta is an exponent and must be > 0, got nan"),
+    ("highway-fast-v0", {"idm": {"delta_range": (4.5, 3.5)}}, r"idm delta_range must be \(low, high\) .* 0 < low <= high"),
+])
+def test_traffic_task_parameters_outside_their_physical_range(task, overrides, match):
+    # highway-env's tasks take costs, the reward's speed range and the IDM drivers' constants; a comfort
+    # deceleration that is not negative, for one, makes every driver's desired gap non-finite (sqrt(-a_max b_min))
+    import envs_jax
+
+    with pytest.raises(ValueError, match=f"{task}: {match}"):
+        envs_jax.make(task, **overrides)
+
+
+def test_traffic_task_parameters_at_the_edge_of_their_range_are_accepted():
+    import envs_jax
+
+    env = envs_jax.make("racetrack-v0", collision_cost=0.0, offroad_cost=0.0, lane_centering_cost=0.0,
+                        idm={"politeness": 1.0, "distance_wanted": 0.0, "time_wanted": 0.0, "lane_change_delay": 0.0})
+    assert env.default_params.idm.politeness == 1.0 and env.default_params.lane_centering_cost == 0.0
+    env = envs_jax.make("highway-v0", collision_cost=0.0, reward_speed_range=[30, 20],
+                        idm={"delta_range": (4.0, 4.0), "politeness": 0.0})
+    assert env.default_params.reward_speed_range == (30.0, 20.0) and env.default_params.collision_cost == 0.0
+
+
 def test_fuzzer_counts_non_finite_steps():
     # benchmarks/fuzz_env.py's counter, on an env whose reward is NaN at every step (params set past make()'s
     # checks) and on the same env as shipped; its adversarial actions hold NaN, infinities and huge values
@@ -425,3 +478,32 @@ def test_fuzzer_counts_non_finite_steps():
     assert res["steps"] == 64 and res["bad_steps"] == res["bad_by_output"]["reward"] >= 32
     assert res["bad_by_output"]["cost"] == res["bad_by_output"]["state"] == 0
     assert fuzz_env.fuzz(env, 64, 8, 8, 0)["bad_steps"] == 0
+
+
+class _Planted:
+    """An env that puts a NaN into the last float of its returned state and of its observation at every step."""
+
+    def __init__(self, env):
+        self.env = env
+
+    def __getattr__(self, name):
+        return getattr(self.env, name)
+
+    def step(self, key, state, action, params=None):
+        obs, st, reward, cost, done, info = self.env.step(key, state, action, params)
+        return obs.at[-1, -1].set(jnp.nan), st.replace(y=st.y.at[-1].set(jnp.nan)), reward, cost, done, info
+
+
+def test_fuzzer_counts_every_step_with_a_planted_non_finite_value():
+    # a NaN in one float of the last vehicle's state and of the last agent's observation, at every step: every
+    # step is counted, under those two outputs only, across segments (3 segments of 4 envs x 4 steps)
+    import importlib.util
+
+    import envs_jax
+
+    spec = importlib.util.spec_from_file_location("fuzz_env", os.path.join(ROOT, "benchmarks", "fuzz_env.py"))
+    fuzz_env = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(fuzz_env)
+    res = fuzz_env.fuzz(_Planted(envs_jax.make("merge")), 48, 4, 4, 0)
+    assert res["steps"] == 48 and res["complete"] and res["bad_steps"] == 48
+    assert res["bad_by_output"] == {"state": 48, "observation": 48, "reward": 0, "cost": 0}

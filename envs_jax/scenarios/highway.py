@@ -254,6 +254,64 @@ def _observation(name, value):
     return kinematic_obs.KinematicsConfig.from_config(obs, where=f"{name}: observation")
 
 
+def _cost(name, key, value):
+    """A cost (or cost weight): a finite number >= 0."""
+    value = _number(name, key, value)
+    if value < 0:
+        raise ValueError(f"{name}: {key} is a cost and must be >= 0, got {value!r}")
+    return value
+
+
+def _speed_range(name, rsr):
+    """``reward_speed_range``: ``[low, high]`` of finite speeds with ``low != high`` (the reward divides by
+    ``high - low``)."""
+    try:
+        arr = np.asarray(rsr, np.float64)
+    except (TypeError, ValueError):
+        arr = None
+    if arr is None or arr.shape != (2,) or not np.all(np.isfinite(arr)) or arr[0] == arr[1]:
+        raise ValueError(f"{name}: reward_speed_range must be [low, high] of finite speeds with low != high, "
+                         f"got {rsr!r}")
+    return float(arr[0]), float(arr[1])
+
+
+# Physical ranges of IDMParams fields: (low, high, low allowed, what); every field must also be finite
+_IDM_RANGES = {
+    "acc_max": (0.0, None, False, "an acceleration in m/s^2"),
+    "comfort_acc_max": (0.0, None, False, "an acceleration in m/s^2"),
+    "comfort_acc_min": (None, 0.0, False, "a deceleration in m/s^2 (negative)"),
+    "distance_wanted": (0.0, None, True, "a jam distance in metres"),
+    "time_wanted": (0.0, None, True, "a time gap in seconds"),
+    "delta": (0.0, None, False, "an exponent"),
+    "politeness": (0.0, 1.0, True, "a weight in [0, 1]"),
+    "lane_change_min_acc_gain": (0.0, None, True, "an acceleration in m/s^2"),
+    "lane_change_max_braking_imposed": (0.0, None, True, "an acceleration in m/s^2"),
+    "lane_change_delay": (0.0, None, True, "a time in seconds"),
+}
+
+
+def check_idm(name, idm: IDMParams) -> IDMParams:
+    """``idm`` if each field is in its physical range (``_IDM_RANGES``; ``delta_range`` is (low, high) with
+    0 < low <= high), else ``ValueError`` naming the field and the allowed range."""
+    for key, (low, high, low_ok, what) in _IDM_RANGES.items():
+        value = getattr(idm, key)
+        try:
+            value = float(value)
+        except (TypeError, ValueError):
+            raise ValueError(f"{name}: idm {key} must be a number, got {value!r}") from None
+        ok = np.isfinite(value) and (low is None or (value >= low if low_ok else value > low)) \
+            and (high is None or (value <= high if low_ok else value < high))
+        if not ok:
+            bound = " and ".join(b for b in (None if low is None else f"{'>=' if low_ok else '>'} {low:g}",
+                                             None if high is None else f"{'<=' if low_ok else '<'} {high:g}") if b)
+            raise ValueError(f"{name}: idm {key} is {what} and must be {bound}, got {value!r}")
+    dr = np.asarray(idm.delta_range, np.float64) if np.ndim(idm.delta_range) == 1 else None
+    if dr is None or dr.shape != (2,) or not np.all(np.isfinite(dr)) or not 0 < dr[0] <= dr[1]:
+        raise ValueError(f"{name}: idm delta_range must be (low, high) of exponents with 0 < low <= high, "
+                         f"got {idm.delta_range!r}")
+    return idm
+
+
 def _idm(name, idm):
     """The ``idm`` key: None (highway-env's constants), an IDMParams or a dict of its fields."""
     if idm is None:
@@ -266,7 +324,7 @@ def _idm(name, idm):
         idm = IDMParams(**idm)
     if not isinstance(idm, IDMParams):
         raise ValueError(f"{name}: idm must be an IDMParams or a dict of its fields, got {type(idm).__name__}")
-    return idm
+    return check_idm(name, idm)
 
 
 def config_given(name: str, cfg: dict, own_keys, env_config, overrides, connected_lanes: str | None = None) -> dict:
@@ -321,9 +379,7 @@ def make_highway(name: str, env_config: dict | None = None, **overrides) -> Traf
         lane0 = _int(name, "initial_lane_id", lane0, 0, lanes_count - 1)
     obs_cfg = _observation(name, cfg["observation"])
     action = _action(name, cfg["action"])
-    rsr = cfg["reward_speed_range"]
-    if np.shape(rsr) != (2,) or not float(rsr[1]) != float(rsr[0]):
-        raise ValueError(f"{name}: reward_speed_range must be [low, high] with low != high, got {rsr!r}")
+    rsr = _speed_range(name, cfg["reward_speed_range"])
     for key in ("normalize_reward", "offroad_terminal"):
         if not isinstance(cfg[key], (bool, np.bool_)):
             raise ValueError(f"{name}: {key} must be True or False, got {cfg[key]!r}")
@@ -331,7 +387,7 @@ def make_highway(name: str, env_config: dict | None = None, **overrides) -> Traf
     task = Highway(name, lanes_count, vehicles_count, k, num_slots, sim, pol, obs_cfg)
     params = HighwayParams(
         duration=_number(name, "duration", cfg["duration"], positive=True),
-        collision_cost=_number(name, "collision_cost", cfg.get("collision_cost", 5.0)),
+        collision_cost=_cost(name, "collision_cost", cfg.get("collision_cost", 5.0)),
         target_speeds=action.get("target_speeds", np.linspace(20, 30, 3)),
         idm=idm, obstacles=None,
         ego_spacing=_number(name, "ego_spacing", cfg["ego_spacing"], positive=True),
@@ -342,7 +398,7 @@ def make_highway(name: str, env_config: dict | None = None, **overrides) -> Traf
         high_speed_reward=_number(name, "high_speed_reward", cfg["high_speed_reward"]),
         lane_change_reward=_number(name, "lane_change_reward", cfg["lane_change_reward"]),
         on_road_reward=_number(name, "on_road_reward", cfg.get("on_road_reward", 0.0)),
-        reward_speed_range=(float(rsr[0]), float(rsr[1])),
+        reward_speed_range=rsr,
         normalize_reward=bool(cfg["normalize_reward"]), offroad_terminal=bool(cfg["offroad_terminal"]),
     )
     if params.normalize_reward and params.high_speed_reward + params.right_lane_reward == params.collision_reward:

@@ -42,7 +42,8 @@ from envs_jax import drivers, kinematic_obs, pair_collisions, regulation
 from envs_jax import lanes as L
 from envs_jax import vehicle as Veh
 from envs_jax.idm import IDMParams
-from envs_jax.scenarios.highway import _int, _number, _observation, _unwrap, config_given
+from envs_jax.scenarios.highway import (_cost, _int, _number, _observation, _speed_range, _unwrap, check_idm,
+                                      config_given)
 from envs_jax.scenarios.intersection import build_road
 from envs_jax.traffic_env import Task, TrafficEnv, TrafficParams
 from envs_jax.traffic_state import TrafficState
@@ -512,9 +513,7 @@ def make_intersection(name: str, env_config: dict | None = None, **overrides) ->
         raise ValueError(f"{name}: spawn_probability must be in [0, 1], got {p!r}")
     obs_cfg = _observation(name, cfg["observation"])
     ts = _action(name, cfg["action"])
-    rsr = cfg["reward_speed_range"]
-    if np.shape(rsr) != (2,) or not float(rsr[1]) != float(rsr[0]):
-        raise ValueError(f"{name}: reward_speed_range must be [low, high] with low != high, got {rsr!r}")
+    rsr = _speed_range(name, cfg["reward_speed_range"])
     for key in ("normalize_reward", "offroad_terminal"):
         if not isinstance(cfg[key], (bool, np.bool_)):
             raise ValueError(f"{name}: {key} must be True or False, got {cfg[key]!r}")
@@ -527,15 +526,16 @@ def make_intersection(name: str, env_config: dict | None = None, **overrides) ->
         idm = dataclasses.replace(intersection_idm(), **idm)
     if not isinstance(idm, IDMParams):
         raise ValueError(f"{name}: idm must be an IDMParams or a dict of its fields, got {type(idm).__name__}")
+    idm = check_idm(name, idm)
     task = IntersectionTraffic(name, k, n_init, num_slots, sim, pol, obs_cfg)
     params = IntersectionTrafficParams(
-        duration=duration, collision_cost=_number(name, "collision_cost", cfg.get("collision_cost", 5.0)),
+        duration=duration, collision_cost=_cost(name, "collision_cost", cfg.get("collision_cost", 5.0)),
         target_speeds=ts, idm=idm, obstacles=None, spawn_probability=p, destination=destination,
         collision_reward=_number(name, "collision_reward", cfg["collision_reward"]),
         high_speed_reward=_number(name, "high_speed_reward", cfg["high_speed_reward"]),
         arrived_reward=_number(name, "arrived_reward", cfg["arrived_reward"]),
         on_road_reward=_number(name, "on_road_reward", cfg.get("on_road_reward", 0.0)),
-        reward_speed_range=(float(rsr[0]), float(rsr[1])),
+        reward_speed_range=rsr,
         normalize_reward=bool(cfg["normalize_reward"]), offroad_terminal=bool(cfg["offroad_terminal"]))
     if params.normalize_reward and params.arrived_reward == params.collision_reward:
         raise ValueError(f"{name}: normalize_reward needs arrived_reward != collision_reward")

@@ -194,21 +194,19 @@ def make_merge(name: str = NAME, env_config: dict | None = None, **overrides) ->
     num_slots = H._int(name, "num_slots", cfg.get("num_slots", total), total)
     obs_cfg = H._observation(name, cfg["observation"])
     action = H._action(name, cfg["action"])
-    rsr = cfg["reward_speed_range"]
-    if np.shape(rsr) != (2,) or not float(rsr[1]) != float(rsr[0]):
-        raise ValueError(f"{name}: reward_speed_range must be [low, high] with low != high, got {rsr!r}")
+    rsr = H._speed_range(name, cfg["reward_speed_range"])
     duration = cfg.get("duration")
     duration = np.inf if duration is None else H._number(name, "duration", duration, positive=True)
     task = MergeTask(k, num_slots, sim, pol, obs_cfg)
     num = lambda key: H._number(name, key, cfg[key])
     params = MergeTaskParams(
         duration=duration,
-        collision_cost=H._number(name, "collision_cost", cfg.get("collision_cost", 5.0)),
+        collision_cost=H._cost(name, "collision_cost", cfg.get("collision_cost", 5.0)),
         target_speeds=action.get("target_speeds", np.linspace(20, 30, 3)),
         idm=H._idm(name, cfg.get("idm")),
         obstacles=np.array([[task.obstacle[0], task.obstacle[1], 0.0, OBSTACLE_SIZE, OBSTACLE_SIZE]]),
         collision_reward=num("collision_reward"), right_lane_reward=num("right_lane_reward"),
-        high_speed_reward=num("high_speed_reward"), reward_speed_range=(float(rsr[0]), float(rsr[1])),
+        high_speed_reward=num("high_speed_reward"), reward_speed_range=rsr,
         merging_speed_reward=num("merging_speed_reward"), lane_change_reward=num("lane_change_reward"),
     )
     if params.high_speed_reward + params.right_lane_reward == params.collision_reward + params.merging_speed_reward:

@@ -44,7 +44,7 @@ from envs_jax import lanes as L
 from envs_jax.continuous_traffic_env import ContinuousTrafficEnv
 from envs_jax.idm import IDMParams
 from envs_jax.scenarios.racetrack import build_road
-from envs_jax.scenarios.highway import _int, _number, _unwrap, config_given
+from envs_jax.scenarios.highway import _cost, _int, _number, _unwrap, check_idm, config_given
 from envs_jax.traffic_env import Task, TrafficParams
 
 NAME = "racetrack-v0"
@@ -276,20 +276,18 @@ def make_racetrack(name: str = NAME, env_config: dict | None = None, **overrides
         idm = IDMParams(**idm)
     if not isinstance(idm, IDMParams):
         raise ValueError(f"{name}: idm must be an IDMParams or a dict of its fields, got {type(idm).__name__}")
+    idm = check_idm(name, idm)
     collision_reward = _number(name, "collision_reward", cfg["collision_reward"])
     if collision_reward == 1.0:
         raise ValueError(f"{name}: collision_reward must differ from 1 (the reward is normalised over "
                          f"[collision_reward, 1])")
-    costs = {key: _number(name, key, cfg.get(key, default)) for key, default in
+    costs = {key: _cost(name, key, cfg.get(key, default)) for key, default in
              (("collision_cost", 1.0), ("offroad_cost", 0.5))}
-    for key, value in costs.items():
-        if value < 0:
-            raise ValueError(f"{name}: {key} is a cost and must be >= 0, got {value!r}")
     task = RacetrackTraffic(k, others, num_slots, sim, pol, clock_steps(duration, pol), obs_cfg, lon, lat)
     params = RacetrackTrafficParams(
         duration=duration, target_speeds=action["target_speeds"], idm=idm, obstacles=None,
         collision_reward=collision_reward,
-        lane_centering_cost=_number(name, "lane_centering_cost", cfg["lane_centering_cost"]),
+        lane_centering_cost=_cost(name, "lane_centering_cost", cfg["lane_centering_cost"]),
         lane_centering_reward=_number(name, "lane_centering_reward", cfg["lane_centering_reward"]),
         action_reward=_number(name, "action_reward", cfg["action_reward"]),
         on_road_reward=_number(name, "on_road_reward", cfg.get("on_road_reward", 0.0)),

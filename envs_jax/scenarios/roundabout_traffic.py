@@ -237,7 +237,7 @@ def make_roundabout(name: str = NAME, env_config: dict | None = None, **override
     num = lambda key: H._number(name, key, cfg[key])
     params = RoundaboutTaskParams(
         duration=H._number(name, "duration", cfg["duration"], positive=True),
-        collision_cost=H._number(name, "collision_cost", cfg.get("collision_cost", 5.0)),
+        collision_cost=H._cost(name, "collision_cost", cfg.get("collision_cost", 5.0)),
         target_speeds=action.get("target_speeds", np.linspace(20, 30, 3)),
         idm=H._idm(name, cfg.get("idm")), obstacles=None,
         incoming_vehicle_destination=-1 if incoming is None else incoming,
