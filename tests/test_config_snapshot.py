@@ -1,0 +1,32 @@
+"""The resolved configuration of every scenario x algorithm x preset and every command line's ``--help`` equal
+the pinned output of the code before the defaults moved into the config dataclasses (tests/config_snapshot.py)."""
+
+import json
+import os
+
+import pytest
+
+from tests.config_snapshot import snapshot
+
+PINNED = os.path.join(os.path.dirname(__file__), "data", "config_snapshot.json")
+
+
+@pytest.fixture(scope="module")
+def pair():
+    with open(PINNED) as f:
+        pinned = json.load(f)
+    return pinned, json.loads(json.dumps(snapshot()))
+
+
+@pytest.mark.parametrize("part", ["configs", "defaults", "key_help", "DEFAULTS", "HELP"])
+def test_resolved_configs_unchanged(pair, part):
+    pinned, now = pair
+    assert now[part].keys() == pinned[part].keys()
+    for name in pinned[part]:
+        assert now[part][name] == pinned[part][name], name
+
+
+@pytest.mark.parametrize("cli", ["train", "train.experiments", "train.figures", "train.render", "train.report"])
+def test_help_unchanged(pair, cli):
+    pinned, now = pair
+    assert now["help"][cli] == pinned["help"][cli]
