@@ -16,9 +16,10 @@ from __future__ import annotations
 import dataclasses
 import difflib
 import json
-import math
 import os
 from typing import Any, Callable
+
+from jaxsmarl.options import TERMINAL_MASKS, Bool, Choice, Int, Num, PerAgent, Sizes
 
 __all__ = ["COMMON", "COMMON_HELP", "AlgoSpec", "ALGOS", "SCENARIOS", "SCENARIO_AGENTS", "CONFIG_DIR", "DEFAULTS", "HELP",
            "register", "spec", "defaults_for", "help_for", "load_config", "read_run_config", "validate", "config_path",
@@ -26,10 +27,6 @@ __all__ = ["COMMON", "COMMON_HELP", "AlgoSpec", "ALGOS", "SCENARIOS", "SCENARIO_
            "Int", "Num", "Choice", "Bool", "PerAgent", "Sizes"]
 
 CONFIG_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), "configs")
-
-# The off-policy learners' `terminal_mask` choices: jaxsmarl.bootstrap.TERMINAL_MASKS, restated here so that
-# this module needs no JAX (tests keep the two equal).
-TERMINAL_MASKS = ("sample", "batch_mean")
 
 # Known scenarios and their action type (checked again against the env when it is built).
 SCENARIOS = {"merge": "discrete", "roundabout": "discrete", "intersection": "continuous", "racetrack": "continuous",
@@ -79,89 +76,8 @@ COMMON_HELP: dict[str, str] = {
 }
 
 
-# ----------------------------------------------------------------------------------------------------------
-# Validation rules: each returns the normalised value or raises ValueError naming the key and what is allowed.
-
-@dataclasses.dataclass(frozen=True)
-class Int:
-    lo: int = 0
-
-    def __call__(self, key: str, v: Any) -> int:
-        if isinstance(v, float) and v.is_integer():
-            v = int(v)
-        if not isinstance(v, int) or isinstance(v, bool) or v < self.lo:
-            raise ValueError(f"'{key}' must be an integer >= {self.lo}, got {v!r}")
-        return v
-
-
-@dataclasses.dataclass(frozen=True)
-class Num:
-    lo: float = -math.inf
-    hi: float = math.inf
-    lo_open: bool = False
-    hi_open: bool = False
-    hint: str = ""  # appended to the error message
-
-    def check(self, key: str, v: Any) -> float:
-        hint = f" ({self.hint})" if self.hint else ""
-        if not isinstance(v, (int, float)) or isinstance(v, bool) or not math.isfinite(v):
-            raise ValueError(f"'{key}' must be a finite number, got {v!r}{hint}")
-        if (v <= self.lo if self.lo_open else v < self.lo) or (v >= self.hi if self.hi_open else v > self.hi):
-            raise ValueError(f"'{key}' must lie in {'(' if self.lo_open else '['}{self.lo}, {self.hi}"
-                             f"{')' if self.hi_open else ']'}, got {v}{hint}")
-        return float(v)
-
-    __call__ = check
-
-
-@dataclasses.dataclass(frozen=True)
-class Choice:
-    values: tuple
-
-    def __call__(self, key: str, v: Any) -> Any:
-        if v not in self.values:
-            raise ValueError(f"'{key}' must be one of {', '.join(map(str, self.values))}, got {v!r}")
-        return v
-
-
-@dataclasses.dataclass(frozen=True)
-class Bool:
-    def __call__(self, key: str, v: Any) -> bool:
-        if not isinstance(v, bool):
-            raise ValueError(f"'{key}' must be true or false, got {v!r}")
-        return v
-
-
-@dataclasses.dataclass(frozen=True)
-class PerAgent:
-    """A number per agent (``[leader, follower]`` for two); a single number, or a list of equal numbers such as the
-    two-agent defaults, sets every agent's. ``n``: the number of agents (the config's ``agents``)."""
-
-    num: Num = Num()
-
-    def __call__(self, key: str, v: Any, n: int = 2) -> list[float]:
-        if isinstance(v, (int, float)) and not isinstance(v, bool):
-            v = [v] * n
-        numbers = isinstance(v, (list, tuple)) and len(v) > 0 and all(
-            isinstance(x, (int, float)) and not isinstance(x, bool) for x in v)
-        if numbers and len(v) != n and all(x == v[0] for x in v):
-            v = [v[0]] * n
-        if not numbers or len(v) != n:
-            what = "two numbers [leader, follower]" if n == 2 else f"{n} numbers, one per agent"
-            raise ValueError(f"'{key}' must be a number or a list of {what}, got {v!r}")
-        return [self.num.check(key, x) for x in v]
-
-
-@dataclasses.dataclass(frozen=True)
-class Sizes:
-    """A non-empty list of positive integers (hidden layer widths)."""
-
-    def __call__(self, key: str, v: Any) -> list[int]:
-        if not isinstance(v, (list, tuple)) or len(v) == 0 or not all(
-                isinstance(h, int) and not isinstance(h, bool) and h > 0 for h in v):
-            raise ValueError(f"'{key}' must be a non-empty list of positive integers, got {v!r}")
-        return list(v)
-
+# Validation rules (jaxsmarl.options): each returns the normalised value or raises ValueError naming the key and
+# what is allowed.
 
 COMMON_RULES: dict[str, Callable] = {
     "total_steps": Int(1), "num_seeds": Int(1), "seed": Int(0), "num_envs": Int(1), "chunk_steps": Int(1),

@@ -35,7 +35,6 @@ batch's done fraction, :mod:`jaxsmarl.bootstrap`).
 
 from __future__ import annotations
 
-import dataclasses
 from collections.abc import Sequence
 from typing import Any
 
@@ -46,6 +45,7 @@ import jax.numpy as jnp
 import optax
 
 from jaxsmarl import bootstrap, columns, networks
+from jaxsmarl.algos.maddpg_config import MADDPGConfig
 from jaxsmarl.lagrangian import Lagrangian
 from jaxsmarl.networks import _Dense
 
@@ -54,62 +54,6 @@ __all__ = ["MADDPGConfig", "MADDPGState", "MADDPGAgent", "Actor", "Transition", 
 
 Q, G = 0, 1  # kind axis of the stacked critics
 LEADER, FOLLOWER = 0, 1
-
-
-@dataclasses.dataclass(frozen=True)
-class MADDPGConfig:
-    """Static hyper-parameters (defaults: the authors' intersection CS-MADDPG run, docs/algorithms.md)."""
-
-    action_dim: int = 1  # per agent
-    obs_dim: int = 8
-    hidden_sizes: tuple[int, ...] = (64, 64, 64)
-    init: str = "torch"  # "torch" (authors' PyTorch default init) or "lecun"
-    max_action: float = 1.0
-    stackelberg: bool = True  # follower conditioned on a1 and leader gradient through mu2
-    constrained: bool = True  # cost critics + Lagrange multipliers
-    critic_input: str = "joint"  # "joint" (paper: s = [o1, o2]) or "own" (authors: o_i)
-    lr_actor: float = 1e-4
-    lr_critic: float = 1e-3
-    gamma: float = 0.95
-    tau: float = 0.01
-    target_update_every: int = 10
-    cost_threshold: tuple[float, ...] = (5.0, 5.0)
-    lambda_rule: str = "dual"  # "dual" (paper p22) or "authors"
-    lr_lambda: float = 1e-3
-    lambda_init: float = 0.0
-    lambda_max: float = 100.0
-    noise_start: tuple[float, ...] = (0.1, 0.1)  # Gaussian action-noise std per agent
-    noise_min: tuple[float, ...] = (0.0, 0.0)
-    eps_start: tuple[float, ...] = (0.1, 0.1)  # probability of a uniform random action per agent
-    eps_min: tuple[float, ...] = (0.0, 0.0)
-    explore_decay: float = 5e-7  # per environment step, both schedules
-    bootstrap_on_truncation: bool = True
-    actor_order: str = "simultaneous"  # or "sequential": the follower's actor step sees the stepped leader actor
-    terminal_mask: str = "sample"  # or "batch_mean": the authors' effective rule (jaxsmarl.bootstrap)
-
-    def __post_init__(self):
-        if self.critic_input not in ("joint", "own"):
-            raise ValueError(f"critic_input must be 'joint' or 'own', got {self.critic_input!r}")
-        if self.init not in ("torch", "lecun"):
-            raise ValueError(f"init must be 'torch' or 'lecun', got {self.init!r}")
-        if self.terminal_mask not in bootstrap.TERMINAL_MASKS:
-            raise ValueError(f"terminal_mask must be one of {', '.join(bootstrap.TERMINAL_MASKS)}, "
-                             f"got {self.terminal_mask!r}")
-        for name in ("cost_threshold", "noise_start", "noise_min", "eps_start", "eps_min"):
-            if len(getattr(self, name)) != 2:
-                raise ValueError(f"{name} needs one value per agent [leader, follower], got {getattr(self, name)}")
-
-    @property
-    def n_kinds(self) -> int:
-        return 2 if self.constrained else 1
-
-    @property
-    def critic_obs_dim(self) -> int:
-        return 2 * self.obs_dim if self.critic_input == "joint" else self.obs_dim
-
-    @property
-    def follower_in_dim(self) -> int:
-        return self.obs_dim + (self.action_dim if self.stackelberg else 0)
 
 
 class Actor(nn.Module):
