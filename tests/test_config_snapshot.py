@@ -30,3 +30,19 @@ def test_resolved_configs_unchanged(pair, part):
 def test_help_unchanged(pair, cli):
     pinned, now = pair
     assert now["help"][cli] == pinned["help"][cli]
+
+
+def test_shipped_configs_hold_values_only():
+    """Every key of train/configs/<scenario>_<algo>.json is a configuration key of that algorithm (narratives
+    live in docs/configs.md)."""
+    import glob
+
+    from train.config import CONFIG_DIR, defaults_for
+
+    files = sorted(glob.glob(os.path.join(CONFIG_DIR, "*.json")))
+    assert files
+    for path in files:
+        algo = os.path.basename(path)[:-5].split("_", 1)[1]
+        with open(path) as f:
+            keys = set(json.load(f))
+        assert keys <= set(defaults_for(algo)), (path, keys - set(defaults_for(algo)))
