@@ -11,7 +11,16 @@ import json
 import os
 import sys
 
-from train.config import ALGOS, COMMON, COMMON_HELP, SCENARIOS, load_config, preset_values, read_run_config
+from train.config import (
+    ALGOS,
+    COMMON,
+    COMMON_HELP,
+    SCENARIOS,
+    load_config,
+    parse_set,
+    preset_values,
+    read_run_config,
+)
 
 
 def _keys_help() -> str:
@@ -128,22 +137,9 @@ def parse_args(argv=None) -> argparse.Namespace:
     return p.parse_args(argv)
 
 
-def _parse_set(items: list[str]) -> dict:
-    out = {}
-    for item in items:
-        if "=" not in item:
-            raise ValueError(f"--set expects KEY=VALUE, got {item!r}")
-        k, v = item.split("=", 1)
-        try:
-            out[k.strip()] = json.loads(v)
-        except json.JSONDecodeError:
-            out[k.strip()] = v
-    return out
-
-
 def build_config(args: argparse.Namespace) -> dict:
     """The validated configuration for ``args`` (raises ValueError before anything is compiled)."""
-    overrides = _parse_set(args.set)
+    overrides = parse_set(args.set)
     for opt, key in (("seeds", "num_seeds"), ("seed", "seed"), ("steps", "total_steps"), ("num_envs", "num_envs"),
                      ("chunk_steps", "chunk_steps"), ("checkpoint_every", "checkpoint_every"),
                      ("eval_episodes", "eval_episodes"), ("agents", "agents"), ("hierarchy", "hierarchy")):
@@ -208,7 +204,9 @@ def main(argv=None) -> int:
         print(f"error: {e}", file=sys.stderr)
         return 2
     except (RuntimeError, OSError) as e:
-        from jaxsmarl.checkpoints import CheckpointWriteError  # here: importing orbax early would start JAX
+        from jaxsmarl.checkpoints import (
+            CheckpointWriteError,  # here: importing orbax early would start JAX
+        )
 
         if not isinstance(e, (CheckpointWriteError, OSError)):
             raise

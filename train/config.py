@@ -22,7 +22,7 @@ from typing import Any, Callable
 from jaxsmarl.options import TERMINAL_MASKS, Bool, Choice, Int, Num, PerAgent, Sizes
 
 __all__ = ["COMMON", "COMMON_HELP", "AlgoSpec", "ALGOS", "SCENARIOS", "SCENARIO_AGENTS", "CONFIG_DIR", "DEFAULTS", "HELP",
-           "register", "spec", "defaults_for", "help_for", "load_config", "read_run_config", "validate", "config_path",
+           "register", "spec", "parse_set", "RESUME_FREE", "defaults_for", "help_for", "load_config", "read_run_config", "validate", "config_path",
            "preset_values", "LEGACY", "MATMUL_PRECISIONS", "TERMINAL_MASKS",
            "Int", "Num", "Choice", "Bool", "PerAgent", "Sizes"]
 
@@ -50,6 +50,10 @@ COMMON: dict[str, Any] = {
     "eval_max_steps": 200,
     "matmul_precision": "highest",
 }
+
+# Keys whose change does not alter a run's training trajectory: a resumed run, and a study keeping a finished run,
+# accept new values for them (train.run also accepts a new total_steps, checked against the saved run).
+RESUME_FREE = ("checkpoint_every", "eval_episodes", "eval_max_steps")
 
 # The value a key had before it existed, for run folders saved without it (read_run_config): the behaviour those
 # runs were trained with. Keys not listed here kept their behaviour under today's default.
@@ -214,6 +218,20 @@ def read_run_config(run_dir: str) -> dict:
     if saved.get("algo") not in ALGOS:
         raise ValueError(f"{path}: 'algo' is {saved.get('algo')!r}; a run's algorithm is one of {', '.join(ALGOS)}")
     return {**defaults_for(saved["algo"]), **LEGACY, **saved}
+
+
+def parse_set(items: list[str]) -> dict:
+    """``--set KEY=VALUE`` items as overrides: each value read as JSON, a plain word as a string."""
+    out = {}
+    for item in items:
+        if "=" not in item:
+            raise ValueError(f"--set expects KEY=VALUE, got {item!r}")
+        k, v = item.split("=", 1)
+        try:
+            out[k.strip()] = json.loads(v)
+        except json.JSONDecodeError:
+            out[k.strip()] = v
+    return out
 
 
 def preset_values(algo: str, preset: str) -> dict:

@@ -31,9 +31,9 @@ from jaxsmarl import metrics
 from jaxsmarl.checkpoints import Checkpointer, CheckpointError
 from jaxsmarl.learner_log import LearnerLog, chunk_rows
 from train import distributed
-from train.loop import make_train, seed_keys
-from train.config import read_run_config
+from train.config import RESUME_FREE, read_run_config
 from train.lock import LOCK_NAME, RunLock
+from train.loop import make_train, seed_keys
 
 __all__ = ["run", "restore_run", "evaluate_checkpoint", "use_all_cpu_cores", "seed_sharding", "seed_parallel",
            "seed_loop"]
@@ -207,8 +207,8 @@ def _check_out_dir(out: str, resume: bool, overwrite: bool) -> None:
 
 
 def _same_config(saved: dict, cfg: dict) -> None:
-    # these do not change the training trajectory; total_steps is checked by _check_new_budget
-    ignore = ("checkpoint_every", "eval_episodes", "eval_max_steps", "total_steps")
+    # total_steps is checked by _check_new_budget
+    ignore = (*RESUME_FREE, "total_steps")
     diff = {k: (saved.get(k), cfg[k]) for k in cfg if k not in ignore and saved.get(k) != cfg[k]}
     if diff:
         raise ValueError(f"--resume with a different configuration than the saved run: {diff}; resume with the "
