@@ -23,7 +23,7 @@ import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 
 from train.config import load_config  # noqa: E402
-from train.loop import make_train, seed_keys  # noqa: E402
+from train.trainer import make_train, seed_keys  # noqa: E402
 from train.run import seed_parallel, use_all_cpu_cores  # noqa: E402
 
 

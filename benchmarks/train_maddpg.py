@@ -46,7 +46,7 @@ def update_flops(agent) -> float:
 def profile_update(seeds: int, scenario: str, algo: str, n: int = 300) -> dict:
     """Updates per second alone (fixed random batch of 256, ``n`` updates in one scan per seed)."""
     from train.algos.maddpg import make_agent
-    from train.loop import make_env
+    from train.trainer import make_env
 
     cfg = load_config(scenario, algo, {})
     agent = make_agent(cfg, make_env(scenario)[0])

@@ -29,6 +29,7 @@ from envs_jax import lanes as L
 from envs_jax import vehicle as V
 from envs_jax.road import Road
 from envs_jax.sparse import sparse_map  # also importable from here (envs_jax.env.sparse_map)
+from envs_jax.time_limit import step_limit
 
 NUM_AGENTS = 2
 
@@ -237,7 +238,7 @@ class DrivingEnv:
         state = state.replace(time=state.time + 1)
         obs = self.observe(state)
         reward, cost, terminated, state, info = self.scenario.outcome(prev, state, action, params)
-        steps_limit = jnp.ceil(params.duration * self.policy_frequency - 1e-6)
+        steps_limit = step_limit(params.duration, self.policy_frequency)
         truncated = state.time >= steps_limit
         done = jnp.all(terminated) | truncated
         info = dict(info)

@@ -31,6 +31,7 @@ from flax import struct
 from envs_jax import drivers, kinematic_obs, pair_collisions
 from envs_jax import lanes as L
 from envs_jax import vehicle as Veh
+from envs_jax.time_limit import step_limit
 from envs_jax.idm import IDMParams
 from envs_jax.road import Road
 from envs_jax.traffic_state import TrafficState
@@ -244,7 +245,7 @@ class TrafficEnv:
         state = state.replace(time=state.time + 1)
         obs = self.observe(state, params, key)
         reward, cost, terminated, info = self.task.outcome(prev, state, action, params)
-        steps_limit = jnp.ceil(params.duration * self.policy_frequency - 1e-6)
+        steps_limit = step_limit(params.duration, self.policy_frequency)
         truncated = state.time >= steps_limit
         done = jnp.all(terminated) | truncated
         idx = np.asarray(self.controlled)

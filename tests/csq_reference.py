@@ -49,7 +49,7 @@ def short_run(scenario: str, preset: str | None) -> dict:
     """One seed of CSQ for ``SHORT`` steps: every episode record, the learner's losses, the final critics' output
     layer and first-layer biases (the losses of every update already depend on all weights)."""
     from train.config import load_config
-    from train.loop import make_train, seed_keys
+    from train.trainer import make_train, seed_keys
 
     cfg = load_config(scenario, "csq", dict(SHORT), preset=preset)
     trainer = make_train(cfg)

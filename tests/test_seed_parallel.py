@@ -20,7 +20,7 @@ import pytest
 from jaxsmarl.algos.mappo_l import MAPPOL
 from jaxsmarl.algos.ppo_base import PPOConfig
 from jaxsmarl.ppo_common import orthogonal_init
-from train.loop import seed_keys
+from train.trainer import seed_keys
 from train.run import seed_loop
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))

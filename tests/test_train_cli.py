@@ -11,7 +11,7 @@ import pytest
 import train.run
 from train import __main__ as cli
 from train.config import CONFIG_DIR, DEFAULTS, HELP, load_config, validate
-from train.loop import make_train, seed_keys
+from train.trainer import make_train, seed_keys
 
 
 # ---------------------------------------------------------------------------------------------------------

@@ -99,7 +99,7 @@ class AlgoSpec:
 
     ``defaults``/``help``: its own keys (besides :data:`COMMON`); ``rules``: key -> rule (keys without a rule are
     taken as they are); ``check(cfg)``: cross-key checks on the normalised config, raising ValueError;
-    ``make_train(config, env) -> train.loop.Trainer``: builds the compiled trainer (imports JAX lazily);
+    ``make_train(config, env) -> train.trainer.Trainer``: builds the compiled trainer (imports JAX lazily);
     ``presets``: name -> values that ``--preset NAME`` sets (after the JSON file, before ``--set``).
     """
 

@@ -127,7 +127,7 @@ def episode_limit(scenario: str) -> int | None:
     """The scenario's episode time limit in decisions (envs_jax default parameters), None if unavailable."""
     try:
         import envs_jax
-        from train.loop import episode_step_limit
+        from envs_jax.time_limit import episode_step_limit
 
         env = envs_jax.make(scenario)
         return episode_step_limit(env, env.default_params)

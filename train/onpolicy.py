@@ -4,7 +4,7 @@
 One *cycle* = ``rollout_length`` loop iterations (each steps every env once) + one ``agent.update``; a chunk is
 a whole number of cycles (``chunk_steps`` and ``total_steps`` are multiples of ``num_envs * rollout_length``,
 checked by the config), so a chunk's ``metrics["episode"]`` (``[n_cycles, T, E]``) is reshaped to
-``[chunk_iters, E]`` as the :mod:`train.loop` contract asks. ``metrics["update"]`` holds the agent's update
+``[chunk_iters, E]`` as the :mod:`train.trainer` contract asks. ``metrics["update"]`` holds the agent's update
 diagnostics per cycle.
 
 Bookkeeping per env: ``alive[E, N]``: agent i has not terminated yet in the current episode (per-agent
@@ -23,7 +23,7 @@ import jax
 import jax.numpy as jnp
 
 from jaxsmarl import metrics
-from train.loop import Trainer, make_evaluate, make_train_fn
+from train.trainer import Trainer, make_evaluate, make_train_fn
 
 __all__ = ["Transition", "OnPolicyState", "make_onpolicy_train"]
 

@@ -33,6 +33,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from envs_jax.time_limit import step_limit
+
 __all__ = ["View", "fit_view", "draw_road", "draw_vehicle", "draw_frame", "simulate", "episode_frames",
            "write_gif", "write_mp4", "render_episode", "render_checkpoint", "load_checkpoint_policy",
            "simple_policy", "COLORS", "main"]
@@ -266,8 +268,8 @@ def simple_policy(env, name: str) -> Callable:
 
 
 def max_decisions(env, params) -> int:
-    """The time limit in policy steps: ``ceil(duration * policy_frequency)``."""
-    return int(math.ceil(float(params.duration) * env.policy_frequency - 1e-6))
+    """The time limit in policy steps: ``ceil(duration * policy_frequency)`` (:mod:`envs_jax.time_limit`)."""
+    return int(step_limit(float(params.duration), env.policy_frequency))
 
 
 def simulate(env, params, policy: Callable, key, max_steps: int | None = None) -> dict:

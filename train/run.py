@@ -9,7 +9,7 @@ Run folder layout (``--out``)::
     eval.csv          greedy evaluation episodes per seed (if eval_episodes > 0)
     checkpoints/<env steps>/   orbax checkpoints of the whole training state (all seeds)
 
-The chunk loop is generic (any :class:`train.loop.Trainer`); resuming restores the newest checkpoint and
+The chunk loop is generic (any :class:`train.trainer.Trainer`); resuming restores the newest checkpoint and
 feeds it to the same compiled chunk, so the result is bit-identical to an uninterrupted run.
 """
 
@@ -33,7 +33,7 @@ from jaxsmarl.learner_log import LearnerLog, chunk_rows
 from train import distributed
 from train.config import RESUME_FREE, read_run_config
 from train.lock import LOCK_NAME, RunLock
-from train.loop import make_train, seed_keys
+from train.trainer import make_train, seed_keys
 
 __all__ = ["run", "restore_run", "evaluate_checkpoint", "use_all_cpu_cores", "seed_sharding", "seed_parallel",
            "seed_loop"]

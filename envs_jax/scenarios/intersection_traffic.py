@@ -44,6 +44,7 @@ from envs_jax import vehicle as Veh
 from envs_jax.idm import IDMParams
 from envs_jax.scenarios.highway import _int, _number, _observation, _unwrap, config_given
 from envs_jax.scenarios.intersection import build_road
+from envs_jax.time_limit import step_limit
 from envs_jax.traffic_env import Task, TrafficEnv, TrafficParams
 from envs_jax.traffic_state import TrafficState
 
@@ -392,7 +393,7 @@ class IntersectionTrafficEnv(TrafficEnv):
         state = state.replace(time=state.time + 1)
         obs = self.observe(state, params, key)
         reward, cost, terminated, info = self.task.outcome(prev, state, action, params)
-        steps_limit = jnp.ceil(params.duration * self.policy_frequency - 1e-6)
+        steps_limit = step_limit(params.duration, self.policy_frequency)
         truncated = state.time >= steps_limit
         done = jnp.all(terminated) | truncated
         idx = np.asarray(self.controlled)
@@ -473,7 +474,7 @@ def _action(name, value):
 
 def default_num_slots(controlled: int, initial_vehicle_count: int, duration: float, policy_frequency: int) -> int:
     """Slots no default episode can fill: the agents, the initial vehicles and challenger, one spawn per step."""
-    return controlled + initial_vehicle_count + int(np.ceil(duration * policy_frequency - 1e-6))
+    return controlled + initial_vehicle_count + int(step_limit(duration, policy_frequency))
 
 
 def make_intersection(name: str, env_config: dict | None = None, **overrides) -> IntersectionTrafficEnv:

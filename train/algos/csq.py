@@ -57,7 +57,8 @@ def make_agent(config: dict, env):
 
 
 def make_train(config: dict, env=None):
-    from train.loop import make_env, make_offpolicy_train
+    from train.offpolicy import make_offpolicy_train
+    from train.trainer import make_env
 
     env = make_env(config["scenario"], config.get("agents")) if env is None else env
     return make_offpolicy_train(config, env, make_agent(config, env[0]))

@@ -63,7 +63,8 @@ def make_agent(config: dict, env):
 def make_train(config: dict, env=None):
     import jax
 
-    from train.loop import make_env, make_offpolicy_train
+    from train.offpolicy import make_offpolicy_train
+    from train.trainer import make_env
 
     env = make_env(config["scenario"]) if env is None else env
     trainer = make_offpolicy_train(config, env, make_agent(config, env[0]))

@@ -41,7 +41,7 @@ def make_agent(config: dict, env):
 
 
 def make_train(config: dict, env=None):
-    from train.loop import make_env
+    from train.trainer import make_env
     from train.onpolicy import make_onpolicy_train
 
     env = make_env(config["scenario"]) if env is None else env
