@@ -41,8 +41,10 @@ import optax
 
 from jaxsmarl import bootstrap, networks
 from jaxsmarl.algos.csq_config import CSQConfig
+from jaxsmarl.exploration import linear_decay
 from jaxsmarl.hierarchy import agent_order, is_chain
 from jaxsmarl.stackelberg import stackelberg_equilibrium
+from jaxsmarl.transition import Transition
 
 __all__ = ["CSQConfig", "CSQState", "CSQAgent"]
 
@@ -55,17 +57,6 @@ class CSQState:
     target_params: Any
     opt_state: Any
     n_updates: jax.Array  # int32, gradient steps taken
-
-
-@flax.struct.dataclass
-class Transition:
-    obs: jax.Array  # [n_agents, obs_dim]
-    action: jax.Array  # int32 [n_agents]
-    reward: jax.Array  # [n_agents]
-    cost: jax.Array  # [n_agents]
-    next_obs: jax.Array  # [n_agents, obs_dim] (pre-reset observation at episode ends)
-    terminated: jax.Array  # bool [n_agents], per-agent terminal flag (not the time limit)
-    truncated: jax.Array  # bool [], time limit reached
 
 
 class CSQAgent:
@@ -89,8 +80,7 @@ class CSQAgent:
     def epsilon(self, env_step: jax.Array) -> jax.Array:
         """Per-agent exploration probability after ``env_step`` steps: ``max(min, start - decay * step)``."""
         c = self.config
-        start, low = jnp.asarray(c.eps_start, jnp.float32), jnp.asarray(c.eps_min, jnp.float32)
-        return jnp.maximum(low, start - c.eps_decay * jnp.asarray(env_step, jnp.float32))
+        return linear_decay(c.eps_start, c.eps_min, c.eps_decay, env_step)
 
     def exploration(self, env_step: jax.Array) -> jax.Array:
         """The training loop's exploration parameters: the per-agent epsilon."""

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Any
 
 from jaxsmarl.hierarchy import is_chain, validate_hierarchy
 from jaxsmarl.options import (
@@ -81,7 +80,7 @@ class CSQConfig:
                   "authors' effective rule: every transition bootstraps, discount scaled by the batch's done "
                   "fraction)", Choice(TERMINAL_MASKS))
     # levels of agent indices or "0|1|2" (jaxsmarl.hierarchy); None: the chain 0|1|...|K-1
-    hierarchy: Any = option(
+    hierarchy: str | tuple | None = option(
         None, "who decides before whom: levels of agent indices, '|' between levels, ',' within one, e.g. '0|1|2' "
               "(chain), '0,1|2' (two leaders), '0,1,2' (no hierarchy); null: the chain 0|1|...|K-1 "
               "(docs/algorithms.md)")

@@ -46,8 +46,10 @@ import optax
 
 from jaxsmarl import bootstrap, columns, networks
 from jaxsmarl.algos.maddpg_config import MADDPGConfig
+from jaxsmarl.exploration import linear_decay
 from jaxsmarl.lagrangian import Lagrangian
 from jaxsmarl.networks import _Dense
+from jaxsmarl.transition import Transition
 
 __all__ = ["MADDPGConfig", "MADDPGState", "MADDPGAgent", "Actor", "Transition", "critic_values",
            "critic_values_columns", "actor_columns"]
@@ -120,17 +122,6 @@ class MADDPGState:
     critic_opt: Any
     lam: jax.Array  # [2] Lagrange multipliers (unused when unconstrained)
     n_updates: jax.Array  # int32
-
-
-@flax.struct.dataclass
-class Transition:
-    obs: jax.Array  # [2, obs_dim]
-    action: jax.Array  # [2, action_dim] executed actions
-    reward: jax.Array  # [2]
-    cost: jax.Array  # [2]
-    next_obs: jax.Array  # [2, obs_dim] (pre-reset observation at episode ends)
-    terminated: jax.Array  # bool [2], per-agent terminal flag
-    truncated: jax.Array  # bool [], time limit
 
 
 class MADDPGAgent:
@@ -221,9 +212,8 @@ class MADDPGAgent:
     def exploration(self, env_step: jax.Array) -> dict:
         """``{"eps": [2], "noise": [2]}`` after ``env_step`` steps: ``max(min, start - decay * step)``."""
         c = self.config
-        t = jnp.asarray(env_step, jnp.float32)
-        sched = lambda s, m: jnp.maximum(jnp.asarray(m, jnp.float32), jnp.asarray(s, jnp.float32) - c.explore_decay * t)
-        return {"eps": sched(c.eps_start, c.eps_min), "noise": sched(c.noise_start, c.noise_min)}
+        return {"eps": linear_decay(c.eps_start, c.eps_min, c.explore_decay, env_step),
+                "noise": linear_decay(c.noise_start, c.noise_min, c.explore_decay, env_step)}
 
     def _explore(self, mu: jax.Array, key: jax.Array, eps: jax.Array, noise: jax.Array) -> jax.Array:
         m = self.config.max_action
