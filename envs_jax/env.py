@@ -28,7 +28,9 @@ from envs_jax import collision, observation
 from envs_jax import lanes as L
 from envs_jax import vehicle as V
 from envs_jax.road import Road
-from envs_jax.sparse import sparse_map  # also importable from here (envs_jax.env.sparse_map)
+from envs_jax.sparse import (
+    sparse_map,  # also importable from here (envs_jax.env.sparse_map)
+)
 from envs_jax.time_limit import step_limit
 
 NUM_AGENTS = 2

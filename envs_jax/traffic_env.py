@@ -31,9 +31,9 @@ from flax import struct
 from envs_jax import drivers, kinematic_obs, pair_collisions
 from envs_jax import lanes as L
 from envs_jax import vehicle as Veh
-from envs_jax.time_limit import step_limit
 from envs_jax.idm import IDMParams
 from envs_jax.road import Road
+from envs_jax.time_limit import step_limit
 from envs_jax.traffic_state import TrafficState
 
 

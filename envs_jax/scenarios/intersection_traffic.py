@@ -42,13 +42,18 @@ from envs_jax import drivers, kinematic_obs, pair_collisions, regulation
 from envs_jax import lanes as L
 from envs_jax import vehicle as Veh
 from envs_jax.idm import IDMParams
-from envs_jax.scenarios.highway import _int, _number, _observation, _unwrap, config_given
+from envs_jax.scenarios.config_values import (
+    config_given,
+    int_value,
+    number_value,
+    observation_config,
+    unwrap_section,
+)
 from envs_jax.scenarios.intersection import build_road
 from envs_jax.time_limit import step_limit
 from envs_jax.traffic_env import Task, TrafficEnv, TrafficParams
 from envs_jax.traffic_state import TrafficState
 
-IDM_CLASS = "highway_env.vehicle.behavior.IDMVehicle"
 ACTIONS = ("SLOWER", "IDLE", "FASTER")  # DiscreteMetaAction(lateral=False)
 META_INDEX = np.array([4, 1, 3], np.int32)  # their indices in vehicle.ACTION_NAMES
 SPAWN_CLEARANCE = 15.0  # [m] a spawn is dropped when a vehicle is closer
@@ -454,8 +459,8 @@ class IntersectionTrafficEnv(TrafficEnv):
 # ----------------------------------------------------------------------------------------------
 # Configuration: highway-env's config dict and keyword overrides -> an IntersectionTrafficEnv
 
-def _action(name, value):
-    action = _unwrap(name, "action", value, "MultiAgentAction", "action_config")
+def meta_action_config(name, value):
+    action = unwrap_section(name, "action", value, "MultiAgentAction", "action_config")
     kind = action.pop("type", None)
     if kind != "DiscreteMetaAction":
         raise ValueError(f"{name}: action type must be 'DiscreteMetaAction' (or MultiAgentAction of it), got {kind!r}")
@@ -492,13 +497,13 @@ def make_intersection(name: str, env_config: dict | None = None, **overrides) ->
                      "target_speeds": list(TARGET_SPEEDS)}
     cfg.update(config_given(name, cfg, OWN_KEYS, env_config, overrides, "allowed: False"))
 
-    sim = _int(name, "simulation_frequency", cfg["simulation_frequency"], 2)
-    pol = _int(name, "policy_frequency", cfg["policy_frequency"], 1, sim)
-    k = _int(name, "controlled_vehicles", cfg["controlled_vehicles"], 1)
-    n_init = _int(name, "initial_vehicle_count", cfg["initial_vehicle_count"], 1)
-    duration = _number(name, "duration", cfg["duration"], positive=True)
+    sim = int_value(name, "simulation_frequency", cfg["simulation_frequency"], 2)
+    pol = int_value(name, "policy_frequency", cfg["policy_frequency"], 1, sim)
+    k = int_value(name, "controlled_vehicles", cfg["controlled_vehicles"], 1)
+    n_init = int_value(name, "initial_vehicle_count", cfg["initial_vehicle_count"], 1)
+    duration = number_value(name, "duration", cfg["duration"], positive=True)
     num_slots = cfg.get("num_slots", default_num_slots(k, n_init, duration, pol))
-    num_slots = _int(name, "num_slots", num_slots, k + 1)
+    num_slots = int_value(name, "num_slots", num_slots, k + 1)
     dest = cfg["destination"]
     if dest is None:
         destination = -1
@@ -506,11 +511,11 @@ def make_intersection(name: str, env_config: dict | None = None, **overrides) ->
         destination = int(dest[1])
     else:
         raise ValueError(f"{name}: destination must be one of 'o0'..'o3' or None (random exit), got {dest!r}")
-    p = _number(name, "spawn_probability", cfg["spawn_probability"])
+    p = number_value(name, "spawn_probability", cfg["spawn_probability"])
     if not 0 <= p <= 1:
         raise ValueError(f"{name}: spawn_probability must be in [0, 1], got {p!r}")
-    obs_cfg = _observation(name, cfg["observation"])
-    ts = _action(name, cfg["action"])
+    obs_cfg = observation_config(name, cfg["observation"])
+    ts = meta_action_config(name, cfg["action"])
     rsr = cfg["reward_speed_range"]
     if np.shape(rsr) != (2,) or not float(rsr[1]) != float(rsr[0]):
         raise ValueError(f"{name}: reward_speed_range must be [low, high] with low != high, got {rsr!r}")
@@ -528,12 +533,12 @@ def make_intersection(name: str, env_config: dict | None = None, **overrides) ->
         raise ValueError(f"{name}: idm must be an IDMParams or a dict of its fields, got {type(idm).__name__}")
     task = IntersectionTraffic(name, k, n_init, num_slots, sim, pol, obs_cfg)
     params = IntersectionTrafficParams(
-        duration=duration, collision_cost=_number(name, "collision_cost", cfg.get("collision_cost", 5.0)),
+        duration=duration, collision_cost=number_value(name, "collision_cost", cfg.get("collision_cost", 5.0)),
         target_speeds=ts, idm=idm, obstacles=None, spawn_probability=p, destination=destination,
-        collision_reward=_number(name, "collision_reward", cfg["collision_reward"]),
-        high_speed_reward=_number(name, "high_speed_reward", cfg["high_speed_reward"]),
-        arrived_reward=_number(name, "arrived_reward", cfg["arrived_reward"]),
-        on_road_reward=_number(name, "on_road_reward", cfg.get("on_road_reward", 0.0)),
+        collision_reward=number_value(name, "collision_reward", cfg["collision_reward"]),
+        high_speed_reward=number_value(name, "high_speed_reward", cfg["high_speed_reward"]),
+        arrived_reward=number_value(name, "arrived_reward", cfg["arrived_reward"]),
+        on_road_reward=number_value(name, "on_road_reward", cfg.get("on_road_reward", 0.0)),
         reward_speed_range=(float(rsr[0]), float(rsr[1])),
         normalize_reward=bool(cfg["normalize_reward"]), offroad_terminal=bool(cfg["offroad_terminal"]))
     if params.normalize_reward and params.arrived_reward == params.collision_reward:
