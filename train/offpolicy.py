@@ -20,7 +20,7 @@ import jax
 import jax.numpy as jnp
 
 from jaxsmarl import buffers, metrics
-from train.trainer import Trainer, make_evaluate, make_train_fn
+from train.trainer import Trainer, assemble_trainer
 
 __all__ = ["RunnerState", "make_offpolicy_train"]
 
@@ -42,11 +42,7 @@ def make_offpolicy_train(config: dict, env, agent) -> Trainer:
     U = config["updates_per_step"]
     B = config["batch_size"]
     warmup = config["warmup"]
-    total_iters = config["total_steps"] // E
-    chunk_iters = min(config["chunk_steps"] // E, total_iters)
-    n_full, tail = divmod(total_iters, chunk_iters)
     capacity = min(config["buffer_size"], config["total_steps"])  # a never-filled buffer needs no more slots
-    n_agents = env.num_agents
 
     def init(key) -> RunnerState:
         k_agent, k_env, k_run = jax.random.split(key, 3)
@@ -98,13 +94,4 @@ def make_offpolicy_train(config: dict, env, agent) -> Trainer:
 
         return run
 
-    run_chunk = make_chunk(chunk_iters)
-    run_tail = make_chunk(tail) if tail else None
-
-    train = make_train_fn(init, run_chunk, run_tail, n_full, chunk_iters)
-
-    evaluate = make_evaluate(wrapped, params, agent.greedy_act, config["eval_episodes"], config["eval_max_steps"])
-
-    return Trainer(config=config, env=env, agent=agent, init=init, run_chunk=run_chunk, run_tail=run_tail,
-                   train=train, evaluate=evaluate, total_iters=total_iters, chunk_iters=chunk_iters,
-                   n_chunks=n_full + (1 if tail else 0))
+    return assemble_trainer(config, env, wrapped, params, agent, init, make_chunk)

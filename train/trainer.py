@@ -34,7 +34,7 @@ from jaxsmarl import metrics
 from train.config import COMMON, spec
 
 __all__ = ["Trainer", "make_env", "make_train", "make_evaluate", "make_train_fn", "seed_keys",
-           "episode_step_limit", "with_matmul_precision"]
+           "episode_step_limit", "with_matmul_precision", "chunk_layout", "assemble_trainer"]
 
 
 class Trainer(NamedTuple):
@@ -152,3 +152,28 @@ def make_evaluate(wrapped, params, act: Callable, episodes: int, max_steps: int)
         return jax.vmap(episode)(jax.random.split(key, max(1, episodes)))
 
     return evaluate
+
+
+def chunk_layout(config: dict) -> tuple[int, int, int, int]:
+    """``(total_iters, chunk_iters, n_full, tail)``: loop iterations of the run and of one chunk (each iteration
+    steps all ``num_envs`` envs once), the number of full chunks and the iterations of the shorter last one."""
+    total_iters = config["total_steps"] // config["num_envs"]
+    chunk_iters = min(config["chunk_steps"] // config["num_envs"], total_iters)
+    n_full, tail = divmod(total_iters, chunk_iters)
+    return total_iters, chunk_iters, n_full, tail
+
+
+def assemble_trainer(config: dict, env, wrapped, params, agent, init: Callable, make_chunk: Callable,
+                     **extra) -> Trainer:
+    """The :class:`Trainer` of a loop given by ``init(key)`` and ``make_chunk(length) -> run_chunk``: the full and
+    the tail chunk, ``train`` over all of them, and the greedy evaluation of ``agent.greedy_act``. ``extra``:
+    further :class:`Trainer` fields (``seeds_in_sequence``)."""
+    total_iters, chunk_iters, n_full, tail = chunk_layout(config)
+    run_chunk = make_chunk(chunk_iters)
+    run_tail = make_chunk(tail) if tail else None
+    train = make_train_fn(init, run_chunk, run_tail, n_full, chunk_iters)
+    evaluate = make_evaluate(wrapped, params, agent.greedy_act, config["eval_episodes"], config["eval_max_steps"])
+    return Trainer(config=config, env=env, agent=agent, init=init, run_chunk=run_chunk, run_tail=run_tail,
+                   train=train, evaluate=evaluate, total_iters=total_iters, chunk_iters=chunk_iters,
+                   n_chunks=n_full + (1 if tail else 0), **extra)
+

@@ -81,16 +81,18 @@ def observation_config(name, value):
     return kinematic_obs.KinematicsConfig.from_config(obs, where=f"{name}: observation")
 
 
-def idm_params(name, idm):
-    """The ``idm`` key: None (highway-env's constants), an IDMParams or a dict of its fields."""
+def idm_params(name, idm, default: IDMParams | None = None) -> IDMParams:
+    """The ``idm`` key: None (``default``, highway-env's constants when None), an IDMParams, or a dict of its fields
+    replacing those of ``default``."""
+    default = IDMParams() if default is None else default
     if idm is None:
-        return IDMParams()
+        return default
     if isinstance(idm, dict):
         fields = {f.name for f in dataclasses.fields(IDMParams)}
         bad = sorted(set(idm) - fields)
         if bad:
             raise ValueError(f"{name}: unknown idm field(s) {bad}; allowed: {sorted(fields)}")
-        idm = IDMParams(**idm)
+        idm = dataclasses.replace(default, **idm)
     if not isinstance(idm, IDMParams):
         raise ValueError(f"{name}: idm must be an IDMParams or a dict of its fields, got {type(idm).__name__}")
     return idm

@@ -30,7 +30,6 @@ agent crashed or all arrived).
 
 from __future__ import annotations
 
-import dataclasses
 from typing import Any
 
 import jax
@@ -44,6 +43,7 @@ from envs_jax import vehicle as Veh
 from envs_jax.idm import IDMParams
 from envs_jax.scenarios.config_values import (
     config_given,
+    idm_params,
     int_value,
     number_value,
     observation_config,
@@ -522,15 +522,7 @@ def make_intersection(name: str, env_config: dict | None = None, **overrides) ->
     for key in ("normalize_reward", "offroad_terminal"):
         if not isinstance(cfg[key], (bool, np.bool_)):
             raise ValueError(f"{name}: {key} must be True or False, got {cfg[key]!r}")
-    idm = cfg.get("idm", intersection_idm())
-    if isinstance(idm, dict):
-        fields = {f.name for f in dataclasses.fields(IDMParams)}
-        bad = sorted(set(idm) - fields)
-        if bad:
-            raise ValueError(f"{name}: unknown idm field(s) {bad}; allowed: {sorted(fields)}")
-        idm = dataclasses.replace(intersection_idm(), **idm)
-    if not isinstance(idm, IDMParams):
-        raise ValueError(f"{name}: idm must be an IDMParams or a dict of its fields, got {type(idm).__name__}")
+    idm = idm_params(name, cfg.get("idm"), intersection_idm())
     task = IntersectionTraffic(name, k, n_init, num_slots, sim, pol, obs_cfg)
     params = IntersectionTrafficParams(
         duration=duration, collision_cost=number_value(name, "collision_cost", cfg.get("collision_cost", 5.0)),

@@ -31,7 +31,6 @@ accepted too.
 
 from __future__ import annotations
 
-import dataclasses
 from typing import Any
 
 import jax
@@ -42,9 +41,9 @@ from flax import struct
 from envs_jax import kinematic_obs, occupancy_grid
 from envs_jax import lanes as L
 from envs_jax.continuous_traffic_env import ContinuousTrafficEnv
-from envs_jax.idm import IDMParams
 from envs_jax.scenarios.config_values import (
     config_given,
+    idm_params,
     int_value,
     number_value,
     unwrap_section,
@@ -272,15 +271,7 @@ def make_racetrack(name: str = NAME, env_config: dict | None = None, **overrides
     lon, lat, action = meta_action_config(cfg["action"])
     if not isinstance(cfg["terminate_off_road"], (bool, np.bool_)):
         raise ValueError(f"{name}: terminate_off_road must be True or False, got {cfg['terminate_off_road']!r}")
-    idm = cfg.get("idm", IDMParams())
-    if isinstance(idm, dict):
-        fields = {f.name for f in dataclasses.fields(IDMParams)}
-        bad = sorted(set(idm) - fields)
-        if bad:
-            raise ValueError(f"{name}: unknown idm field(s) {bad}; allowed: {sorted(fields)}")
-        idm = IDMParams(**idm)
-    if not isinstance(idm, IDMParams):
-        raise ValueError(f"{name}: idm must be an IDMParams or a dict of its fields, got {type(idm).__name__}")
+    idm = idm_params(name, cfg.get("idm"))
     collision_reward = number_value(name, "collision_reward", cfg["collision_reward"])
     if collision_reward == 1.0:
         raise ValueError(f"{name}: collision_reward must differ from 1 (the reward is normalised over "
