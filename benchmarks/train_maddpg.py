@@ -28,7 +28,8 @@ import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 
 from train.config import load_config  # noqa: E402
-from train.run import seed_parallel, seed_sharding, use_all_cpu_cores  # noqa: E402
+from train.parallel import seed_parallel, seed_sharding  # noqa: E402
+from train.xla_flags import use_all_cpu_cores  # noqa: E402
 
 RESULTS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results", "train_maddpg.json")
 

@@ -274,7 +274,7 @@ def test_no_valid_checkpoint_one_line_exit_2(tmp_path, small_config, capsys):
 
 
 def test_eval_only_skips_a_damaged_newest_checkpoint(tmp_path, small_config, capsys):
-    from train.run import evaluate_checkpoint
+    from train.evaluation import evaluate_checkpoint
 
     out = str(tmp_path / "e")
     run(small_config, out, verbose=False, max_chunks=2)

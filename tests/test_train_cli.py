@@ -8,6 +8,7 @@ import jax
 import numpy as np
 import pytest
 
+import train.programs
 import train.run
 from train import __main__ as cli
 from train.config import CONFIG_DIR, DEFAULTS, HELP, load_config, validate
@@ -64,7 +65,7 @@ def test_cli_rejects_bad_config_before_compiling(monkeypatch, capsys):
         raise AssertionError("compiled despite an invalid configuration")
 
     monkeypatch.setattr(train.run, "run", boom)
-    monkeypatch.setattr(train.run, "make_train", boom)
+    monkeypatch.setattr(train.programs, "make_train", boom)
     assert cli.main(["--set", "gamma=2", "--out", "unused"]) == 2
     assert "'gamma' must lie in" in capsys.readouterr().err
     assert cli.main(["--scenario", "racetrack", "--algo", "sq"]) == 2

@@ -1,9 +1,9 @@
-"""train.run.use_all_cpu_cores adds its XLA:CPU flags only where jaxlib knows them: an unknown XLA_FLAGS entry
+"""train.xla_flags.use_all_cpu_cores adds its XLA:CPU flags only where jaxlib knows them: an unknown XLA_FLAGS entry
 aborts the process at backend start-up, so on an older jaxlib the flags must stay out."""
 
 import os
 
-import train.run as run
+import train.xla_flags as run
 
 
 def _flags_after(monkeypatch, version, xla_flags):

@@ -159,7 +159,7 @@ def build_config(args: argparse.Namespace) -> dict:
 
 def main(argv=None) -> int:
     args = parse_args(argv)
-    from train.run import use_all_cpu_cores
+    from train.xla_flags import use_all_cpu_cores
 
     use_all_cpu_cores()  # seeds are split over the cores (a no-op once JAX has started, e.g. inside tests)
     try:
@@ -170,7 +170,7 @@ def main(argv=None) -> int:
         if cluster.requested and not args.print_config:
             distributed.initialize(cluster)
         if args.eval_only:
-            from train.run import evaluate_checkpoint
+            from train.evaluation import evaluate_checkpoint
 
             ev = evaluate_checkpoint(args.eval_only, episodes=args.eval_episodes)
             print(json.dumps({"env_steps": ev["env_steps"], **ev["summary"]}, indent=2))

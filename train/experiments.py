@@ -341,9 +341,9 @@ def main(argv=None) -> int:
     except ValueError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
-    import train.run
+    import train.xla_flags
 
-    train.run.use_all_cpu_cores()
+    train.xla_flags.use_all_cpu_cores()
     enable_compile_cache(os.path.join(out, "jax_cache"))
     run_study(out, args.only, args.quick, args.seeds, args.steps, overrides, overwrite=args.overwrite,
               gifs=not args.no_gifs, report_only=args.report_only, verbose=not args.quiet)

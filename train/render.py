@@ -402,9 +402,9 @@ def render_episode(env, params, policy: Callable, out: str, seed: int = 0, strid
 
 def load_checkpoint_policy(run_dir: str, seed: int = 0, step: int | None = None):
     """``(env, params, policy, config)`` for seed ``seed``'s greedy agent in run folder ``run_dir`` (newest
-    checkpoint, or ``step``; :func:`train.run.restore_run`)."""
+    checkpoint, or ``step``; :func:`train.restore.restore_run`)."""
     from train.config import read_run_config
-    from train.run import restore_run
+    from train.restore import restore_run
 
     n = int(read_run_config(run_dir)["num_seeds"])  # a bad seed fails before anything is loaded
     if not 0 <= seed < n:

@@ -50,7 +50,7 @@ class Trainer(NamedTuple):
     chunk_iters: int
     n_chunks: int  # including the tail chunk
     # Run the seeds of a device one after another (lax.map) instead of batched (vmap) in the training chunks
-    # (train.run.seed_parallel): cheaper on XLA:CPU for the on-policy and MADDPG chunks (set on the CPU only; on a
+    # (train.parallel.seed_parallel): cheaper on XLA:CPU for the on-policy and MADDPG chunks (set on the CPU only; on a
     # GPU the batched seeds keep the device busy; docs/performance.md).
     seeds_in_sequence: bool = False
 
