@@ -52,7 +52,7 @@ def test_flags_survive_a_stray_word_in_the_users_flags():
     import subprocess
     import sys
 
-    code = ("import jax, jax.numpy as jnp, train.run as run; run.use_all_cpu_cores(); "
+    code = ("import jax, jax.numpy as jnp, train.xla_flags as run; run.use_all_cpu_cores(); "
             "t = jax.jit(lambda x: (x * x).sum(0)).lower(jnp.ones((512, 64))).compile().as_text(); "
             "print('ynn' in t, run._jaxlib_version() >= run.XLA_CPU_FLAGS_SINCE)")
     env = dict(os.environ, XLA_FLAGS="--xla_cpu_multi_thread_eigen=false stray_word", JAX_PLATFORMS="cpu")
