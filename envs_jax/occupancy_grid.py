@@ -34,12 +34,7 @@ from envs_jax import lanes as L
 from envs_jax import vehicle as Veh
 from envs_jax.kinematic_obs import FEATURES as VEHICLE_FEATURES
 from envs_jax.kinematic_obs import feature_table
-from envs_jax.observation_config import (
-    check_features,
-    check_features_range,
-    check_flags,
-    given_fields,
-)
+from envs_jax.observation_config import check_features, check_features_range, check_flags, given_fields
 from envs_jax.road import Road
 from envs_jax.traffic_state import TrafficState
 

@@ -21,11 +21,7 @@ import numpy as np
 from highway_env.envs.racetrack_env import RacetrackEnv
 from highway_env.vehicle.kinematics import Vehicle
 
-from tests.traffic_oracle import (
-    finish_records,
-    multi_agent_config,
-    record_frames,
-)
+from tests.traffic_oracle import finish_records, multi_agent_config, record_frames
 from tests.traffic_oracle import inject as inject_state
 
 

@@ -20,10 +20,10 @@ import pytest
 
 from jaxsmarl import buffers, metrics
 from jaxsmarl.checkpoints import Checkpointer
+from tests.test_checkpoints import _leaves_equal
 from train import __main__ as cli
 from train.config import load_config
 from train.run import run
-from tests.test_checkpoints import _leaves_equal
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 

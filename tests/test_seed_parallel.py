@@ -20,8 +20,8 @@ import pytest
 from jaxsmarl.algos.mappo_l import MAPPOL
 from jaxsmarl.algos.ppo_base import PPOConfig
 from jaxsmarl.ppo_common import orthogonal_init
-from train.trainer import seed_keys
 from train.parallel import seed_loop
+from train.trainer import seed_keys
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 COLLECTIVES = ("all-reduce", "all-gather", "collective-permute", "all-to-all", "reduce-scatter")

@@ -14,7 +14,6 @@ from train import __main__ as cli
 from train.config import CONFIG_DIR, DEFAULTS, HELP, load_config, validate
 from train.trainer import make_train, seed_keys
 
-
 # ---------------------------------------------------------------------------------------------------------
 # Validation: every mistake is a ValueError naming the fix, raised before anything is compiled.
 

@@ -11,16 +11,7 @@ import json
 import os
 import sys
 
-from train.config import (
-    ALGOS,
-    COMMON,
-    COMMON_HELP,
-    SCENARIOS,
-    load_config,
-    parse_set,
-    preset_values,
-    read_run_config,
-)
+from train.config import ALGOS, COMMON, COMMON_HELP, SCENARIOS, load_config, parse_set, preset_values, read_run_config
 
 
 def _keys_help() -> str:

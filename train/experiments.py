@@ -31,13 +31,7 @@ import os
 import sys
 import time
 
-from train.config import (
-    RESUME_FREE,
-    defaults_for,
-    load_config,
-    parse_set,
-    read_run_config,
-)
+from train.config import RESUME_FREE, defaults_for, load_config, parse_set, read_run_config
 from train.study import STUDY
 
 __all__ = ["STUDY", "QUICK", "DEFAULT_SEEDS", "plan", "parse_only", "run_study", "main"]

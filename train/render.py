@@ -21,14 +21,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from train.drawing import (
-    WHOLE_ROAD_EXTENT,
-    View,
-    draw_frame,
-    draw_road,
-    fit_view,
-    road_bounds,
-)
+from train.drawing import WHOLE_ROAD_EXTENT, View, draw_frame, draw_road, fit_view, road_bounds
 from train.episode_record import simple_policy, simulate
 from train.video import frame_indices, write_gif, write_mp4
 

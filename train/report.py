@@ -23,12 +23,7 @@ import numpy as np
 from jaxsmarl import metrics, stats
 from train import figures, records
 from train.figures import label, short_runs, study_runs
-from train.reference_results import (
-    AUTHORS,
-    CODE_DIFFERENCES,
-    PAPER_CLAIMS,
-    authors_summary,
-)
+from train.reference_results import AUTHORS, CODE_DIFFERENCES, PAPER_CLAIMS, authors_summary
 from train.study import STUDY
 
 __all__ = ["final_per_seed", "eval_per_seed", "interval", "compare", "write_report", "render_report"]

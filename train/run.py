@@ -37,14 +37,7 @@ from train.console import final_report, say
 from train.evaluation import evaluate_state, write_eval_csv
 from train.lock import RunLock
 from train.programs import compiled_chunks, program
-from train.run_folder import (
-    check_new_budget,
-    check_out_dir,
-    check_process_count,
-    clear_run_dir,
-    same_config,
-    set_aside,
-)
+from train.run_folder import check_new_budget, check_out_dir, check_process_count, clear_run_dir, same_config, set_aside
 from train.trainer import seed_keys
 
 __all__ = ["run"]

@@ -186,10 +186,10 @@ def run_sweep(config: dict, sweep: dict[str, list], out: str, *, overwrite: bool
     from jaxsmarl.checkpoints import Checkpointer
     from jaxsmarl.learner_log import LearnerLog, chunk_rows
     from train import distributed
-    from train.lock import RunLock
-    from train.trainer import make_env, make_train, seed_keys
     from train.evaluation import eval_rows, write_eval_csv
+    from train.lock import RunLock
     from train.run_folder import check_out_dir, clear_run_dir
+    from train.trainer import make_env, make_train, seed_keys
 
     configs = sweep_configs(config, sweep)
     keys = list(sweep)

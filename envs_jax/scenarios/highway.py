@@ -30,14 +30,8 @@ from flax import struct
 from envs_jax import kinematic_obs
 from envs_jax import lanes as L
 from envs_jax.road import RoadNetwork
-from envs_jax.scenarios.config_values import (
-    config_given,
-    idm_params,
-    int_value,
-    meta_action_config,
-    number_value,
-    observation_config,
-)
+from envs_jax.scenarios.config_values import (config_given, idm_params, int_value, meta_action_config, number_value,
+                                              observation_config)
 from envs_jax.traffic_env import Task, TrafficEnv, TrafficParams
 
 C, S, N = L.LINE_CONTINUOUS_LINE, L.LINE_STRIPED, L.LINE_NONE

@@ -38,17 +38,12 @@ import numpy as np
 from flax import struct
 
 from envs_jax import drivers, kinematic_obs, pair_collisions, regulation
+from envs_jax import lane_locate as LL
 from envs_jax import lanes as L
 from envs_jax import vehicle as Veh
 from envs_jax.idm import IDMParams
-from envs_jax.scenarios.config_values import (
-    config_given,
-    idm_params,
-    int_value,
-    number_value,
-    observation_config,
-    unwrap_section,
-)
+from envs_jax.scenarios.config_values import (config_given, idm_params, int_value, number_value, observation_config,
+                                              unwrap_section)
 from envs_jax.scenarios.intersection import build_road
 from envs_jax.time_limit import step_limit
 from envs_jax.traffic_env import Task, TrafficEnv, TrafficParams
@@ -221,7 +216,7 @@ class IntersectionTraffic(Task):
         bx = lambda a: jnp.broadcast_to(jnp.asarray(a, st.x.dtype), (v,))
         # the closest lane of the new poses only (one, or one per agent), then spread over the slots
         pose = [jnp.atleast_1d(jnp.asarray(a, st.x.dtype)) for a in (x, y, heading)]
-        lane, s, lat, _ = L.locate(lanes, *pose)
+        lane, s, lat, _ = LL.locate(lanes, *pose)
         on_road = L.on_lane_coords(lanes.col("length")[lane], lanes.col("width")[lane], s, lat)
         lane, on_road = jnp.broadcast_to(lane, (v,)), jnp.broadcast_to(on_road, (v,))
         x, y, heading = bx(x), bx(y), bx(heading)

@@ -41,13 +41,7 @@ from flax import struct
 from envs_jax import kinematic_obs, occupancy_grid
 from envs_jax import lanes as L
 from envs_jax.continuous_traffic_env import ContinuousTrafficEnv
-from envs_jax.scenarios.config_values import (
-    config_given,
-    idm_params,
-    int_value,
-    number_value,
-    unwrap_section,
-)
+from envs_jax.scenarios.config_values import config_given, idm_params, int_value, number_value, unwrap_section
 from envs_jax.scenarios.racetrack import build_road
 from envs_jax.traffic_env import Task, TrafficParams
 

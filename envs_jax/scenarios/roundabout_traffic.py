@@ -32,6 +32,7 @@ import numpy as np
 from flax import struct
 
 from envs_jax import kinematic_obs
+from envs_jax import lane_locate as LL
 from envs_jax import lanes as L
 from envs_jax import vehicle as Veh
 from envs_jax.scenarios import config_values as CV
@@ -177,7 +178,7 @@ class RoundaboutTask(Task):
                                  jnp.asarray(draws["delta"], dtype)])
         dest = jnp.concatenate([jnp.asarray(self.agent_dest), jnp.asarray(draws["destination"], jnp.int32)])
         # plan_route_to starts from the closest lane of the new vehicle, not the lane it was made on
-        start = L.locate(self.road.lanes, x, y, heading)[0]
+        start = LL.locate(self.road.lanes, x, y, heading)[0]
         roads = jnp.asarray(self.route_roads)[start, dest]
         ids = jnp.asarray(self.route_ids)[start, dest]
         lens = jnp.asarray(self.route_lens)[start, dest]

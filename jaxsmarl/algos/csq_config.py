@@ -10,16 +10,7 @@ import dataclasses
 import math
 
 from jaxsmarl.hierarchy import is_chain, validate_hierarchy
-from jaxsmarl.options import (
-    TERMINAL_MASKS,
-    Bool,
-    Choice,
-    Int,
-    Num,
-    PerAgent,
-    Sizes,
-    option,
-)
+from jaxsmarl.options import TERMINAL_MASKS, Bool, Choice, Int, Num, PerAgent, Sizes, option
 
 __all__ = ["CSQConfig"]
 

@@ -10,16 +10,7 @@ from __future__ import annotations
 import dataclasses
 import math
 
-from jaxsmarl.options import (
-    TERMINAL_MASKS,
-    Bool,
-    Choice,
-    Int,
-    Num,
-    PerAgent,
-    Sizes,
-    option,
-)
+from jaxsmarl.options import TERMINAL_MASKS, Bool, Choice, Int, Num, PerAgent, Sizes, option
 
 __all__ = ["MADDPGConfig"]
 

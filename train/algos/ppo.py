@@ -41,8 +41,8 @@ def make_agent(config: dict, env):
 
 
 def make_train(config: dict, env=None):
-    from train.trainer import make_env
     from train.onpolicy import make_onpolicy_train
+    from train.trainer import make_env
 
     env = make_env(config["scenario"]) if env is None else env
     return make_onpolicy_train(config, env, make_agent(config, env[0]))
