@@ -15,8 +15,8 @@ import numpy as np
 from envs_jax import kinematic_obs
 from envs_jax.idm import IDMParams
 
-__all__ = ["IDM_CLASS", "RENDER_KEYS", "config_given", "idm_params", "int_value", "meta_action_config",
-           "number_value", "observation_config", "unwrap_section"]
+__all__ = ["IDM_CLASS", "RENDER_KEYS", "config_given", "flag_value", "idm_params", "int_value", "meta_action_config",
+           "number_value", "observation_config", "speed_range", "unwrap_section"]
 
 # highway-env's IDM drivers, the only other_vehicles_type the tasks simulate
 IDM_CLASS = "highway_env.vehicle.behavior.IDMVehicle"
@@ -39,6 +39,20 @@ def number_value(name, key, value, positive=False):
     if positive and not float(value) > 0:
         raise ValueError(f"{name}: {key} must be > 0, got {value!r}")
     return float(value)
+
+
+def flag_value(name, key, value) -> bool:
+    """A config key that must be True or False."""
+    if not isinstance(value, (bool, np.bool_)):
+        raise ValueError(f"{name}: {key} must be True or False, got {value!r}")
+    return bool(value)
+
+
+def speed_range(name, value):
+    """``reward_speed_range``: ``[low, high]`` with ``low != high``."""
+    if np.shape(value) != (2,) or not float(value[1]) != float(value[0]):
+        raise ValueError(f"{name}: reward_speed_range must be [low, high] with low != high, got {value!r}")
+    return value
 
 
 def unwrap_section(name, section, value, multi, inner):

@@ -30,8 +30,8 @@ from flax import struct
 from envs_jax import kinematic_obs
 from envs_jax import lanes as L
 from envs_jax.road import RoadNetwork
-from envs_jax.scenarios.config_values import (config_given, idm_params, int_value, meta_action_config, number_value,
-                                              observation_config)
+from envs_jax.scenarios.config_values import (config_given, flag_value, idm_params, int_value, meta_action_config,
+                                              number_value, observation_config, speed_range)
 from envs_jax.traffic_env import Task, TrafficEnv, TrafficParams
 
 C, S, N = L.LINE_CONTINUOUS_LINE, L.LINE_STRIPED, L.LINE_NONE
@@ -221,12 +221,9 @@ def make_highway(name: str, env_config: dict | None = None, **overrides) -> Traf
         lane0 = int_value(name, "initial_lane_id", lane0, 0, lanes_count - 1)
     obs_cfg = observation_config(name, cfg["observation"])
     action = meta_action_config(name, cfg["action"])
-    rsr = cfg["reward_speed_range"]
-    if np.shape(rsr) != (2,) or not float(rsr[1]) != float(rsr[0]):
-        raise ValueError(f"{name}: reward_speed_range must be [low, high] with low != high, got {rsr!r}")
+    rsr = speed_range(name, cfg["reward_speed_range"])
     for key in ("normalize_reward", "offroad_terminal"):
-        if not isinstance(cfg[key], (bool, np.bool_)):
-            raise ValueError(f"{name}: {key} must be True or False, got {cfg[key]!r}")
+        flag_value(name, key, cfg[key])
     idm = idm_params(name, cfg.get("idm"))
     task = Highway(name, lanes_count, vehicles_count, k, num_slots, sim, pol, obs_cfg)
     params = HighwayParams(

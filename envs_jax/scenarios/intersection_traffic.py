@@ -42,8 +42,8 @@ from envs_jax import lane_locate as LL
 from envs_jax import lanes as L
 from envs_jax import vehicle as Veh
 from envs_jax.idm import IDMParams
-from envs_jax.scenarios.config_values import (config_given, idm_params, int_value, number_value, observation_config,
-                                              unwrap_section)
+from envs_jax.scenarios.config_values import (config_given, flag_value, idm_params, int_value, number_value,
+                                              observation_config, speed_range, unwrap_section)
 from envs_jax.scenarios.intersection import build_road
 from envs_jax.time_limit import step_limit
 from envs_jax.traffic_env import Task, TrafficEnv, TrafficParams
@@ -454,7 +454,7 @@ class IntersectionTrafficEnv(TrafficEnv):
 # ----------------------------------------------------------------------------------------------
 # Configuration: highway-env's config dict and keyword overrides -> an IntersectionTrafficEnv
 
-def meta_action_config(name, value):
+def _action(name, value):
     action = unwrap_section(name, "action", value, "MultiAgentAction", "action_config")
     kind = action.pop("type", None)
     if kind != "DiscreteMetaAction":
@@ -510,13 +510,10 @@ def make_intersection(name: str, env_config: dict | None = None, **overrides) ->
     if not 0 <= p <= 1:
         raise ValueError(f"{name}: spawn_probability must be in [0, 1], got {p!r}")
     obs_cfg = observation_config(name, cfg["observation"])
-    ts = meta_action_config(name, cfg["action"])
-    rsr = cfg["reward_speed_range"]
-    if np.shape(rsr) != (2,) or not float(rsr[1]) != float(rsr[0]):
-        raise ValueError(f"{name}: reward_speed_range must be [low, high] with low != high, got {rsr!r}")
+    ts = _action(name, cfg["action"])
+    rsr = speed_range(name, cfg["reward_speed_range"])
     for key in ("normalize_reward", "offroad_terminal"):
-        if not isinstance(cfg[key], (bool, np.bool_)):
-            raise ValueError(f"{name}: {key} must be True or False, got {cfg[key]!r}")
+        flag_value(name, key, cfg[key])
     idm = idm_params(name, cfg.get("idm"), intersection_idm())
     task = IntersectionTraffic(name, k, n_init, num_slots, sim, pol, obs_cfg)
     params = IntersectionTrafficParams(

@@ -194,9 +194,7 @@ def make_merge(name: str = NAME, env_config: dict | None = None, **overrides) ->
     num_slots = CV.int_value(name, "num_slots", cfg.get("num_slots", total), total)
     obs_cfg = CV.observation_config(name, cfg["observation"])
     action = CV.meta_action_config(name, cfg["action"])
-    rsr = cfg["reward_speed_range"]
-    if np.shape(rsr) != (2,) or not float(rsr[1]) != float(rsr[0]):
-        raise ValueError(f"{name}: reward_speed_range must be [low, high] with low != high, got {rsr!r}")
+    rsr = CV.speed_range(name, cfg["reward_speed_range"])
     duration = cfg.get("duration")
     duration = np.inf if duration is None else CV.number_value(name, "duration", duration, positive=True)
     task = MergeTask(k, num_slots, sim, pol, obs_cfg)

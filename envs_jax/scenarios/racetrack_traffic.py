@@ -41,7 +41,8 @@ from flax import struct
 from envs_jax import kinematic_obs, occupancy_grid
 from envs_jax import lanes as L
 from envs_jax.continuous_traffic_env import ContinuousTrafficEnv
-from envs_jax.scenarios.config_values import config_given, idm_params, int_value, number_value, unwrap_section
+from envs_jax.scenarios.config_values import (config_given, flag_value, idm_params, int_value, number_value,
+                                              unwrap_section)
 from envs_jax.scenarios.racetrack import build_road
 from envs_jax.traffic_env import Task, TrafficParams
 
@@ -191,7 +192,7 @@ class RacetrackTraffic(Task):
 # ----------------------------------------------------------------------------------------------
 # Configuration: highway-env's config dict and keyword overrides -> an environment
 
-def meta_action_config(value) -> tuple:
+def _action(value) -> tuple:
     action = unwrap_section(NAME, "action", value, "MultiAgentAction", "action_config")
     kind = action.pop("type", None)
     if kind != "ContinuousAction":
@@ -226,7 +227,7 @@ def meta_action_config(value) -> tuple:
     return bool(lon), bool(lat), out
 
 
-def observation_config(value):
+def _observation(value):
     obs = unwrap_section(NAME, "observation", value, "MultiAgentObservation", "observation_config")
     kind = obs.get("type")
     if kind == "OccupancyGrid":
@@ -261,10 +262,9 @@ def make_racetrack(name: str = NAME, env_config: dict | None = None, **overrides
     total = k + others
     num_slots = int_value(name, "num_slots", cfg.get("num_slots", total), total)
     duration = number_value(name, "duration", cfg["duration"], positive=True)
-    obs_cfg = observation_config(cfg["observation"])
-    lon, lat, action = meta_action_config(cfg["action"])
-    if not isinstance(cfg["terminate_off_road"], (bool, np.bool_)):
-        raise ValueError(f"{name}: terminate_off_road must be True or False, got {cfg['terminate_off_road']!r}")
+    obs_cfg = _observation(cfg["observation"])
+    lon, lat, action = _action(cfg["action"])
+    flag_value(name, "terminate_off_road", cfg["terminate_off_road"])
     idm = idm_params(name, cfg.get("idm"))
     collision_reward = number_value(name, "collision_reward", cfg["collision_reward"])
     if collision_reward == 1.0:

@@ -232,8 +232,7 @@ def make_roundabout(name: str = NAME, env_config: dict | None = None, **override
         incoming = CV.int_value(name, "incoming_vehicle_destination", incoming, 0, len(DESTINATIONS) - 1)
     obs_cfg = CV.observation_config(name, cfg["observation"])
     action = CV.meta_action_config(name, cfg["action"])
-    if not isinstance(cfg["normalize_reward"], (bool, np.bool_)):
-        raise ValueError(f"{name}: normalize_reward must be True or False, got {cfg['normalize_reward']!r}")
+    CV.flag_value(name, "normalize_reward", cfg["normalize_reward"])
     task = RoundaboutTask(k, num_slots, sim, pol, obs_cfg)
     num = lambda key: CV.number_value(name, key, cfg[key])
     params = RoundaboutTaskParams(
