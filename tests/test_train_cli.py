@@ -11,8 +11,9 @@ import pytest
 import train.programs
 import train.run
 from train import __main__ as cli
+from train.build import make_train
 from train.config import CONFIG_DIR, DEFAULTS, HELP, load_config, validate
-from train.trainer import make_train, seed_keys
+from train.trainer import seed_keys
 
 # ---------------------------------------------------------------------------------------------------------
 # Validation: every mistake is a ValueError naming the fix, raised before anything is compiled.

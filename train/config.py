@@ -93,13 +93,19 @@ COMMON_RULES: dict[str, Callable] = {
 # ----------------------------------------------------------------------------------------------------------
 # The registry.
 
+LOOPS = ("offpolicy", "onpolicy")  # the training loops an algorithm can run in (train.build)
+
+
 @dataclasses.dataclass(frozen=True)
 class AlgoSpec:
     """One trainable algorithm.
 
     ``defaults``/``help``: its own keys (besides :data:`COMMON`); ``rules``: key -> rule (keys without a rule are
     taken as they are); ``check(cfg)``: cross-key checks on the normalised config, raising ValueError;
-    ``make_train(config, env) -> train.trainer.Trainer``: builds the compiled trainer (imports JAX lazily);
+    ``make_agent(config, env) -> agent``: the learner for the run (imports JAX lazily); ``loop``: the training loop
+    that drives it, ``"offpolicy"`` (:mod:`train.offpolicy`) or ``"onpolicy"`` (:mod:`train.onpolicy`), joined by
+    :func:`train.build.make_train`; ``seeds_in_sequence_on_cpu``: on the CPU each device runs its seeds one after
+    another, cheaper there for these learners' updates (docs/performance.md);
     ``presets``: name -> values that ``--preset NAME`` sets (after the JSON file, before ``--set``).
     """
 
@@ -109,13 +115,17 @@ class AlgoSpec:
     defaults: dict
     help: dict
     rules: dict
-    make_train: Callable
+    make_agent: Callable
+    loop: str
     check: Callable | None = None
     presets: dict = dataclasses.field(default_factory=dict)
+    seeds_in_sequence_on_cpu: bool = False
 
     def __post_init__(self):
         if self.action not in ("discrete", "continuous"):
             raise ValueError(f"AlgoSpec {self.name}: action must be discrete or continuous")
+        if self.loop not in LOOPS:
+            raise ValueError(f"AlgoSpec {self.name}: loop must be one of {', '.join(LOOPS)}, got {self.loop!r}")
         missing = [k for k in self.defaults if k not in self.help]
         if missing:
             raise ValueError(f"AlgoSpec {self.name}: keys without a help line: {missing}")

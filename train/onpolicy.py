@@ -98,6 +98,4 @@ def make_onpolicy_train(config: dict, env, agent) -> Trainer:
 
         return run
 
-    # seed by seed is cheaper on XLA:CPU; an accelerator wants the seeds batched
-    return assemble_trainer(config, env, wrapped, params, agent, init, make_chunk,
-                            seeds_in_sequence=jax.default_backend() == "cpu")
+    return assemble_trainer(config, env, wrapped, params, agent, init, make_chunk)

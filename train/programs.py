@@ -11,8 +11,8 @@ import json
 
 import jax.numpy as jnp
 
+from train.build import make_train
 from train.parallel import seed_parallel, seed_sharding
-from train.trainer import make_train
 
 __all__ = ["PROGRAMS", "program", "compiled_chunks"]
 

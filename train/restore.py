@@ -9,8 +9,9 @@ from typing import Any
 import jax
 
 from jaxsmarl.checkpoints import Checkpointer, CheckpointError
+from train.build import make_train
 from train.config import read_run_config
-from train.trainer import make_train, seed_keys
+from train.trainer import seed_keys
 
 __all__ = ["restore_run", "restore_checked"]
 

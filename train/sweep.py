@@ -80,7 +80,7 @@ def sweep_values(configs: list[dict], keys: list[str]):
 
 def trainer_for(config: dict, env, values: dict):
     """The trainer of ``config`` with ``values`` (traced arrays of one configuration) in place of the swept keys."""
-    from train.trainer import make_train
+    from train.build import make_train
 
     cfg = dict(config)
     for k, v in values.items():
@@ -94,7 +94,7 @@ def check_traceable(config: dict, env, keys: list[str]) -> None:
     import jax
     import jax.numpy as jnp
 
-    from train.trainer import make_train
+    from train.build import make_train
 
     trainer = make_train(config, env)
     values = {k: jax.ShapeDtypeStruct(jnp.shape(jnp.asarray(config[k], jnp.float32)), jnp.float32) for k in keys}
@@ -186,10 +186,11 @@ def run_sweep(config: dict, sweep: dict[str, list], out: str, *, overwrite: bool
     from jaxsmarl.checkpoints import Checkpointer
     from jaxsmarl.learner_log import LearnerLog, chunk_rows
     from train import distributed
+    from train.build import make_train
     from train.evaluation import eval_rows, write_eval_csv
     from train.lock import RunLock
     from train.run_folder import check_out_dir, clear_run_dir
-    from train.trainer import make_env, make_train, seed_keys
+    from train.trainer import make_env, seed_keys
 
     configs = sweep_configs(config, sweep)
     keys = list(sweep)

@@ -1,7 +1,7 @@
 """The trainer contract every training loop fulfils, and the parts the loops share (PureJaxRL style).
 
-``make_train(config)`` returns a :class:`Trainer` for ``config["algo"]`` (built by the algorithm's
-:class:`train.config.AlgoSpec`). Its functions are pure and per seed; vmap them over seeds:
+``train.build.make_train(config)`` returns a :class:`Trainer` for ``config["algo"]`` (the algorithm's agent in its
+loop). Its functions are pure and per seed; vmap them over seeds:
 
 * ``init(key) -> state``: a pytree with at least ``agent`` (the learner's state, used for evaluation).
 * ``run_chunk(state, start_iter) -> (state, metrics)``: ``chunk_iters`` loop iterations in one compiled program.
@@ -31,9 +31,8 @@ import jax.numpy as jnp
 
 from envs_jax.time_limit import episode_step_limit
 from jaxsmarl import metrics
-from train.config import COMMON, spec
 
-__all__ = ["Trainer", "make_env", "make_train", "make_evaluate", "make_train_fn", "seed_keys",
+__all__ = ["Trainer", "make_env", "make_evaluate", "make_train_fn", "seed_keys",
            "episode_step_limit", "with_matmul_precision", "chunk_layout", "assemble_trainer"]
 
 
@@ -73,13 +72,6 @@ def seed_keys(config: dict) -> jax.Array:
     """One raw PRNG key per seed: ``fold_in(PRNGKey(seed), i)``."""
     base = jax.random.PRNGKey(config["seed"])
     return jax.vmap(lambda i: jax.random.fold_in(base, i))(jnp.arange(config["num_seeds"]))
-
-
-def make_train(config: dict, env=None) -> Trainer:
-    """The trainer of ``config["algo"]``, its programs traced at ``config["matmul_precision"]`` (full float32
-    matrix products by default on every backend). ``env``: optional ``(env, wrapped_env, params)``."""
-    trainer = spec(config["algo"]).make_train(config, env)
-    return with_matmul_precision(trainer, config.get("matmul_precision", COMMON["matmul_precision"]))
 
 
 def with_matmul_precision(trainer: Trainer, precision: str) -> Trainer:

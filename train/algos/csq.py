@@ -56,17 +56,9 @@ def make_agent(config: dict, env):
                               obs_dim=math.prod(env.obs_shape[1:]), **options))
 
 
-def make_train(config: dict, env=None):
-    from train.offpolicy import make_offpolicy_train
-    from train.trainer import make_env
-
-    env = make_env(config["scenario"], config.get("agents")) if env is None else env
-    return make_offpolicy_train(config, env, make_agent(config, env[0]))
-
-
 register(
     AlgoSpec("csq", "discrete", "constrained Stackelberg Q-learning (paper Algorithm 1)", DEFAULTS, HELP, RULES,
-             make_train, check, presets={"authors": AUTHORS_PRESET}),
+             make_agent, "offpolicy", check, presets={"authors": AUTHORS_PRESET}),
     AlgoSpec("sq", "discrete", "Stackelberg Q-learning: CSQ with threshold d=100 (the paper's discrete 'Bi-AC')",
-             DEFAULTS, HELP, RULES, make_train, check, presets={"authors": AUTHORS_PRESET}),
+             DEFAULTS, HELP, RULES, make_agent, "offpolicy", check, presets={"authors": AUTHORS_PRESET}),
 )

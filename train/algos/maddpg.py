@@ -60,28 +60,17 @@ def make_agent(config: dict, env):
                                     stackelberg=stackelberg, constrained=constrained, **options))
 
 
-def make_train(config: dict, env=None):
-    import jax
-
-    from train.offpolicy import make_offpolicy_train
-    from train.trainer import make_env
-
-    env = make_env(config["scenario"]) if env is None else env
-    trainer = make_offpolicy_train(config, env, make_agent(config, env[0]))
-    # on the CPU each device's seeds run one after another, which is faster there (CSQ gains nothing, so it keeps
-    # them batched; docs/performance.md)
-    return trainer._replace(seeds_in_sequence=jax.default_backend() == "cpu")
-
-
 register(
     AlgoSpec("cs-maddpg", "continuous", "constrained Stackelberg MADDPG (paper Algorithm 2)",
-             CONSTRAINED_DEFAULTS, HELP, CONSTRAINED_RULES, make_train, check,
-             presets={"authors": CONSTRAINED_AUTHORS_PRESET}),
+             CONSTRAINED_DEFAULTS, HELP, CONSTRAINED_RULES, make_agent, "offpolicy", check,
+             presets={"authors": CONSTRAINED_AUTHORS_PRESET}, seeds_in_sequence_on_cpu=True),
     AlgoSpec("s-maddpg", "continuous", "Stackelberg MADDPG without constraints (the paper's continuous 'Bi-AC')",
-             UNCONSTRAINED_DEFAULTS, HELP, RULES, make_train, check, presets={"authors": AUTHORS_PRESET}),
+             UNCONSTRAINED_DEFAULTS, HELP, RULES, make_agent, "offpolicy", check,
+             presets={"authors": AUTHORS_PRESET}, seeds_in_sequence_on_cpu=True),
     AlgoSpec("c-maddpg", "continuous", "constrained MADDPG without leader/follower structure",
-             CONSTRAINED_DEFAULTS, HELP, CONSTRAINED_RULES, make_train, check,
-             presets={"authors": CONSTRAINED_AUTHORS_PRESET}),
+             CONSTRAINED_DEFAULTS, HELP, CONSTRAINED_RULES, make_agent, "offpolicy", check,
+             presets={"authors": CONSTRAINED_AUTHORS_PRESET}, seeds_in_sequence_on_cpu=True),
     AlgoSpec("maddpg", "continuous", "plain MADDPG (each actor on its own observation, no constraints)",
-             UNCONSTRAINED_DEFAULTS, HELP, RULES, make_train, check, presets={"authors": AUTHORS_PRESET}),
+             UNCONSTRAINED_DEFAULTS, HELP, RULES, make_agent, "offpolicy", check,
+             presets={"authors": AUTHORS_PRESET}, seeds_in_sequence_on_cpu=True),
 )

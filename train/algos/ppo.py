@@ -40,17 +40,11 @@ def make_agent(config: dict, env):
     return cls(PPOConfig(**kw))
 
 
-def make_train(config: dict, env=None):
-    from train.onpolicy import make_onpolicy_train
-    from train.trainer import make_env
-
-    env = make_env(config["scenario"]) if env is None else env
-    return make_onpolicy_train(config, env, make_agent(config, env[0]))
-
-
 register(
     AlgoSpec("mappo-l", "continuous", "MAPPO-Lagrangian (Gu et al. 2023): PPO-clip on A_r - lambda A_c, "
-             "sequential agent updates", MAPPOL_DEFAULTS, MAPPOL_HELP, MAPPOL_RULES, make_train, check),
+             "sequential agent updates", MAPPOL_DEFAULTS, MAPPOL_HELP, MAPPOL_RULES, make_agent, "onpolicy", check,
+             seeds_in_sequence_on_cpu=True),
     AlgoSpec("macpo", "continuous", "MACPO (Gu et al. 2023): constrained trust-region (CPO) steps, sequential "
-             "agent updates", MACPO_DEFAULTS, MACPO_HELP, MACPO_RULES, make_train, check),
+             "agent updates", MACPO_DEFAULTS, MACPO_HELP, MACPO_RULES, make_agent, "onpolicy", check,
+             seeds_in_sequence_on_cpu=True),
 )
