@@ -16,10 +16,13 @@ __all__ = ["step_limit", "episode_step_limit"]
 
 
 def step_limit(duration, policy_frequency):
-    """``ceil(duration * policy_frequency)``: an int for Python numbers, a float array for arrays (traced in a
-    jitted step, where the env compares its step counter with it)."""
+    """``ceil(duration * policy_frequency)``: an int for finite Python numbers (infinity, a task without a time
+    limit, stays infinite), a float array for arrays (traced in a jitted step, where the env compares its step
+    counter with it)."""
     x = duration * policy_frequency - 1e-6
-    return jnp.ceil(x) if isinstance(x, jax.Array) else math.ceil(x)
+    if isinstance(x, jax.Array):
+        return jnp.ceil(x)
+    return math.ceil(x) if math.isfinite(x) else x
 
 
 def episode_step_limit(env, params) -> int | None:
