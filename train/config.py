@@ -2,8 +2,9 @@
 
 A configuration is a flat dict: the :data:`COMMON` keys every run has (scenario, budget, seeds, chunking,
 evaluation) plus the keys of its algorithm. Each algorithm registers an :class:`AlgoSpec` (in a module of
-:mod:`train.algos`, discovered automatically) with its defaults, one help line per key, validation rules and the
-function that builds its compiled trainer.
+:mod:`train.algos`, discovered automatically) with its defaults, one help line per key and validation rules (read
+from the algorithm's config dataclass, :mod:`jaxsmarl.options`), the function that builds its agent and the loop
+that trains it (joined by :func:`train.build.make_train`).
 
 ``load_config(scenario, algo, overrides)`` starts from the common and the algorithm's defaults, applies
 ``train/configs/<scenario>_<algo>.json`` (the authors' effective hyper-parameters), then the overrides (command
