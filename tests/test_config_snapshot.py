@@ -28,7 +28,11 @@ def test_resolved_configs_unchanged(pair, part):
 
 @pytest.mark.parametrize("cli", ["train", "train.experiments", "train.figures", "train.render", "train.report"])
 def test_help_unchanged(pair, cli):
+    import sys
+
     pinned, now = pair
+    if f"{sys.version_info[0]}.{sys.version_info[1]}" != pinned["python"]:
+        pytest.skip(f"--help pinned under Python {pinned['python']}, whose argparse formats it")
     assert now["help"][cli] == pinned["help"][cli]
 
 
