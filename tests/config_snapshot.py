@@ -61,10 +61,7 @@ def resolved_configs() -> dict:
 def help_texts() -> dict:
     """Each command line's ``--help``."""
     import train.__main__ as cli
-    import train.experiments as experiments
-    import train.figures as figures
-    import train.render as render
-    import train.report as report
+    from train import experiments, figures, render, report
 
     return {"train": _help(cli.parse_args), "train.experiments": _help(experiments.main),
             "train.figures": _help(figures.main), "train.render": _help(render.main),
