@@ -26,7 +26,7 @@ def saturation(run_dir: str, step: int | None = None, starts: int = 16) -> list[
     import numpy as np
 
     from train.config import read_run_config
-    from train.run import restore_run
+    from train.restore import restore_run
 
     if starts < 1:
         raise ValueError(f"--starts must be at least 1, got {starts}")

@@ -106,8 +106,9 @@ def bench_solver(k, batch, repeats, inner):
 
 
 def bench_train(k, steps, warmup, chunk_steps):
+    from train.build import make_train
     from train.config import load_config
-    from train.loop import make_train, seed_keys
+    from train.trainer import seed_keys
 
     cfg = load_config("highway", "csq", dict(agents=k, num_seeds=1, num_envs=1, total_steps=steps, warmup=warmup,
                                              chunk_steps=chunk_steps, checkpoint_every=0, eval_episodes=0))

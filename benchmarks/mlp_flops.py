@@ -16,7 +16,7 @@ import time
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
-from train.run import use_all_cpu_cores  # noqa: E402
+from train.xla_flags import use_all_cpu_cores  # noqa: E402
 
 use_all_cpu_cores()
 

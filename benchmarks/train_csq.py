@@ -23,26 +23,22 @@ import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 
 from train.config import load_config  # noqa: E402
-from train.loop import make_train, seed_keys  # noqa: E402
-from train.run import seed_parallel, use_all_cpu_cores  # noqa: E402
+from train.programs import compiled_chunks, program  # noqa: E402
+from train.trainer import seed_keys  # noqa: E402
+from train.xla_flags import use_all_cpu_cores  # noqa: E402
 
 
 def bench(seeds: int, steps: int, chunk_steps: int, scenario: str, algo: str) -> dict:
     cfg = load_config(scenario, algo, dict(num_seeds=seeds, total_steps=steps, chunk_steps=min(chunk_steps, steps),
                                            checkpoint_every=0, eval_episodes=0))
-    trainer = make_train(cfg)
+    prog = program(cfg)  # the programs python -m train runs: seeds split over the CPU cores
+    trainer = prog["trainer"]
     keys = seed_keys(cfg)
-    # the programs python -m train runs: seeds split over the CPU cores, one independent program per device
     t0 = time.perf_counter()
-    init = seed_parallel(trainer.init, seeds).lower(keys).compile()
-    state = init(keys)
+    state = prog["init"](keys)
     jax.block_until_ready(state)
-    chunk = seed_parallel(trainer.run_chunk, seeds, in_axes=(0, None), donate_argnums=0,
-                          sequential=trainer.seeds_in_sequence).lower(state, jnp.int32(0)).compile()
-    tail = None
-    if trainer.run_tail is not None:
-        tail = seed_parallel(trainer.run_tail, seeds, in_axes=(0, None), donate_argnums=0,
-                             sequential=trainer.seeds_in_sequence).lower(state, jnp.int32(0)).compile()
+    compiled = compiled_chunks(prog, state)
+    chunk, tail = compiled["chunk"], compiled.get("tail")
     compile_s = time.perf_counter() - t0
     load0 = os.getloadavg()[0]
     t1, c1 = time.perf_counter(), time.process_time()

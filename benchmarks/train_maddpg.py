@@ -28,7 +28,8 @@ import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 
 from train.config import load_config  # noqa: E402
-from train.run import seed_parallel, seed_sharding, use_all_cpu_cores  # noqa: E402
+from train.parallel import seed_parallel, seed_sharding  # noqa: E402
+from train.xla_flags import use_all_cpu_cores  # noqa: E402
 
 RESULTS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results", "train_maddpg.json")
 
@@ -46,7 +47,7 @@ def update_flops(agent) -> float:
 def profile_update(seeds: int, scenario: str, algo: str, n: int = 300) -> dict:
     """Updates per second alone (fixed random batch of 256, ``n`` updates in one scan per seed)."""
     from train.algos.maddpg import make_agent
-    from train.loop import make_env
+    from train.trainer import make_env
 
     cfg = load_config(scenario, algo, {})
     agent = make_agent(cfg, make_env(scenario)[0])

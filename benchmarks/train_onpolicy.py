@@ -6,8 +6,8 @@
 Uses each scenario's configuration (``train/configs/<scenario>_<algo>.json``: num_envs x rollout_length samples per
 update); ``--num-envs`` overrides it. Compiles one chunk of ``--cycles`` rollout+update cycles ahead of time, runs it
 once to warm up and then ``--repeats`` times (median wall and process CPU time). "all seeds" counts every
-seed's steps. The programs and XLA flags are those of ``python -m train`` (:func:`train.run.seed_parallel`,
-:func:`train.run.use_all_cpu_cores`). Writes ``benchmarks/results/train_onpolicy.json`` with the machine's load
+seed's steps. The programs and XLA flags are those of ``python -m train`` (:func:`train.programs.program`,
+:func:`train.xla_flags.use_all_cpu_cores`). Writes ``benchmarks/results/train_onpolicy.json`` with the machine's load
 average: on a shared CPU the wall-clock figures are low.
 """
 
@@ -26,8 +26,9 @@ import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 
 from train.config import load_config  # noqa: E402
-from train.loop import make_train, seed_keys  # noqa: E402
-from train.run import seed_parallel, use_all_cpu_cores  # noqa: E402
+from train.programs import compiled_chunks, program  # noqa: E402
+from train.trainer import seed_keys  # noqa: E402
+from train.xla_flags import use_all_cpu_cores  # noqa: E402
 
 
 def bench(scenario: str, algo: str, seeds: int, cycles: int, repeats: int, num_envs: int | None) -> dict:
@@ -38,12 +39,11 @@ def bench(scenario: str, algo: str, seeds: int, cycles: int, repeats: int, num_e
     cycle = base["num_envs"] * base["rollout_length"]
     over.update(total_steps=cycle * cycles, chunk_steps=cycle * cycles)
     cfg = load_config(scenario, algo, over)
-    trainer = make_train(cfg)
+    prog = program(cfg)  # the programs python -m train runs
     keys = seed_keys(cfg)
     t0 = time.perf_counter()
-    state = seed_parallel(trainer.init, seeds)(keys)  # the programs python -m train runs
-    chunk = seed_parallel(trainer.run_chunk, seeds, in_axes=(0, None), donate_argnums=0,
-                          sequential=trainer.seeds_in_sequence).lower(state, jnp.int32(0)).compile()
+    state = prog["init"](keys)
+    chunk = compiled_chunks(prog, state)["chunk"]
     compile_s = time.perf_counter() - t0
     state, m = chunk(state, jnp.int32(0))
     jax.block_until_ready(m)

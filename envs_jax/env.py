@@ -25,10 +25,14 @@ import numpy as np
 from flax import struct
 
 from envs_jax import collision, observation
+from envs_jax import lane_locate as LL
 from envs_jax import lanes as L
 from envs_jax import vehicle as V
 from envs_jax.road import Road
-from envs_jax.sparse import sparse_map  # also importable from here (envs_jax.env.sparse_map)
+from envs_jax.sparse import (
+    sparse_map,  # also importable from here (envs_jax.env.sparse_map)
+)
+from envs_jax.time_limit import step_limit
 
 NUM_AGENTS = 2
 
@@ -216,7 +220,7 @@ class DrivingEnv:
         # Polar coordinates of each vehicle around the circle centres (what the lane coordinates
         # need besides the position), reused by the controllers of the next frame (the vehicles
         # do not move between the lane update and the controllers).
-        coords = L.circle_coords(self.road.lanes, state.x, state.y)
+        coords = LL.circle_coords(self.road.lanes, state.x, state.y)
         if self.discrete:
             state = self._decide_discrete(state, coords, action, params)
         else:
@@ -237,7 +241,7 @@ class DrivingEnv:
         state = state.replace(time=state.time + 1)
         obs = self.observe(state)
         reward, cost, terminated, state, info = self.scenario.outcome(prev, state, action, params)
-        steps_limit = jnp.ceil(params.duration * self.policy_frequency - 1e-6)
+        steps_limit = step_limit(params.duration, self.policy_frequency)
         truncated = state.time >= steps_limit
         done = jnp.all(terminated) | truncated
         info = dict(info)
@@ -251,9 +255,9 @@ class DrivingEnv:
     # ------------------------------------------------------------------------------------------
     def _locate(self, x, y, heading):
         """Closest lane of each vehicle, its local coordinates and on-road flag, and the
-        vehicles' polar coordinates around every circle centre (``L.circle_coords``, ``[2, C]``
-        each), from which ``L.lane_coords`` gives the local coordinates on any lane."""
-        lane, s, lat, coords = L.locate(self.road.lanes, x, y, heading)
+        vehicles' polar coordinates around every circle centre (``LL.circle_coords``, ``[2, C]``
+        each), from which ``LL.lane_coords`` gives the local coordinates on any lane."""
+        lane, s, lat, coords = LL.locate(self.road.lanes, x, y, heading)
         lengths = self.road.lanes.col("length")[lane]
         widths = self.road.lanes.col("width")[lane]
         return lane, s, lat, L.on_lane_coords(lengths, widths, s, lat), coords
@@ -265,7 +269,7 @@ class DrivingEnv:
         lengths = road.lanes.col("length")
 
         tl, rp = st.target_lane, st.route_ptr
-        s, _ = L.lane_coords(road.lanes, st.x, st.y, coords, tl)
+        s, _ = LL.lane_coords(road.lanes, st.x, st.y, coords, tl)
         end = s > lengths[tl] - L.VEHICLE_LENGTH / 2
         # next_lane only for the (rare) vehicles at the end of their lane.
         nl, nrp = sparse_map(road.next_lane, end, tl, s, st.route_roads, st.route_ids, st.route_len, rp,
@@ -284,7 +288,7 @@ class DrivingEnv:
         """One simulation frame: controllers (``road.act``), kinematics (``road.step``), collisions."""
         if self.discrete:
             st = self._follow_road(st, coords)
-            s_t, lat_t = L.lane_coords(self.road.lanes, st.x, st.y, coords, st.target_lane)
+            s_t, lat_t = LL.lane_coords(self.road.lanes, st.x, st.y, coords, st.target_lane)
             steering = jax.vmap(lambda tl, s, lat, h, v: V.steering_control(self.road.lanes, tl, s, lat, h, v))(
                 st.target_lane, s_t, lat_t, st.heading, st.speed)
             acceleration = V.speed_control(st.target_speed, st.speed)

@@ -30,6 +30,7 @@ import numpy as np
 
 from envs_jax import lanes as L
 from envs_jax import vehicle as Veh
+from envs_jax.observation_config import check_features, check_features_range, check_flags, given_fields
 from envs_jax.road import Road
 from envs_jax.traffic_state import TrafficState
 
@@ -59,24 +60,8 @@ class KinematicsConfig:
     @staticmethod
     def from_config(config: dict, where: str = "observation") -> "KinematicsConfig":
         """Validate a highway-env ``{"type": "Kinematics", ...}`` dict (``ValueError`` naming the problem)."""
-        config = dict(config)
-        kind = config.pop("type", "Kinematics")
-        if kind != "Kinematics":
-            raise ValueError(f"{where}: type must be 'Kinematics', got {kind!r}")
-        names = {f.name for f in dataclasses.fields(KinematicsConfig)}
-        unknown = sorted(k for k in config if k not in names)
-        if unknown:
-            raise ValueError(f"{where}: unknown key(s) {unknown}; allowed: {sorted(names) + ['type']}")
-        out = dict(config)
-        if "features" in out:
-            feats = out["features"]
-            if isinstance(feats, str) or not all(isinstance(f, str) for f in feats) or not len(feats):
-                raise ValueError(f"{where}: features must be a non-empty list of names from {list(FEATURES)}, "
-                                 f"got {feats!r}")
-            bad = [f for f in feats if f not in FEATURES]
-            if bad:
-                raise ValueError(f"{where}: unknown feature(s) {bad}; allowed: {list(FEATURES)}")
-            out["features"] = tuple(feats)
+        out = given_fields(config, KinematicsConfig, "Kinematics", where)
+        check_features(out, FEATURES, where)
         if "vehicles_count" in out:
             n = out["vehicles_count"]
             if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
@@ -84,21 +69,9 @@ class KinematicsConfig:
             out["vehicles_count"] = int(n)
         if "order" in out and out["order"] not in ORDERS:
             raise ValueError(f"{where}: order must be one of {list(ORDERS)}, got {out['order']!r}")
-        for k in ("absolute", "normalize", "clip", "see_behind", "observe_intentions", "include_obstacles"):
-            if k in out and not isinstance(out[k], (bool, np.bool_)):
-                raise ValueError(f"{where}: {k} must be True or False, got {out[k]!r}")
-        if out.get("features_range") is not None:
-            fr = out["features_range"]
-            if not isinstance(fr, dict):
-                raise ValueError(f"{where}: features_range must be a dict name -> [min, max], got {fr!r}")
-            items = []
-            for name, rng in fr.items():
-                if (np.shape(rng) != (2,) or not np.all(np.isfinite(np.asarray(rng, float)))
-                        or float(rng[1]) == float(rng[0])):
-                    raise ValueError(f"{where}: features_range[{name!r}] must be [min, max] with finite, distinct "
-                                     f"values, got {rng!r}")
-                items.append((str(name), (float(rng[0]), float(rng[1]))))
-            out["features_range"] = tuple(items)
+        check_flags(out, ("absolute", "normalize", "clip", "see_behind", "observe_intentions", "include_obstacles"),
+                    where)
+        check_features_range(out, where)
         return KinematicsConfig(**out)
 
     @property

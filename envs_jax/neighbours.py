@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
+from envs_jax import lane_locate as LL
 from envs_jax import lanes as L
 
 MARGIN = 1.0  # lateral margin of the on-lane test [m]
@@ -22,10 +23,10 @@ def coordinates_on(lanes: L.LaneTable, query_lane, px, py):
     (any shape ``[...]``): ``(s, lat)`` of shape ``[..., N]``."""
     q = jnp.asarray(query_lane)[..., None]
     shape = q.shape[:-1] + px.shape
-    circles = L.circle_coords(lanes, px, py)  # [N, C]: once per object, not per query lane
+    circles = LL.circle_coords(lanes, px, py)  # [N, C]: once per object, not per query lane
     # lane rows gathered per query lane ([..., 1]) and broadcast over the objects; only the
     # lane families the road has (a straight road costs no trigonometry)
-    s, lat = L.lane_coords(lanes, px, py, circles, q)
+    s, lat = LL.lane_coords(lanes, px, py, circles, q)
     return jnp.broadcast_to(s, shape), jnp.broadcast_to(lat, shape)
 
 

@@ -34,6 +34,7 @@ from envs_jax import lanes as L
 from envs_jax import vehicle as Veh
 from envs_jax.kinematic_obs import FEATURES as VEHICLE_FEATURES
 from envs_jax.kinematic_obs import feature_table
+from envs_jax.observation_config import check_features, check_features_range, check_flags, given_fields
 from envs_jax.road import Road
 from envs_jax.traffic_state import TrafficState
 
@@ -59,24 +60,8 @@ class OccupancyGridConfig:
     @staticmethod
     def from_config(config: dict, where: str = "observation") -> "OccupancyGridConfig":
         """Validate a highway-env ``{"type": "OccupancyGrid", ...}`` dict (``ValueError`` naming the problem)."""
-        config = dict(config)
-        kind = config.pop("type", "OccupancyGrid")
-        if kind != "OccupancyGrid":
-            raise ValueError(f"{where}: type must be 'OccupancyGrid', got {kind!r}")
-        names = {f.name for f in dataclasses.fields(OccupancyGridConfig)}
-        unknown = sorted(k for k in config if k not in names)
-        if unknown:
-            raise ValueError(f"{where}: unknown OccupancyGrid key(s) {unknown}; allowed: {sorted(names) + ['type']}")
-        out = dict(config)
-        if "features" in out:
-            feats = out["features"]
-            if isinstance(feats, str) or not len(feats) or not all(isinstance(f, str) for f in feats):
-                raise ValueError(f"{where}: features must be a non-empty list of names from {list(FEATURES)}, "
-                                 f"got {feats!r}")
-            bad = [f for f in feats if f not in FEATURES]
-            if bad:
-                raise ValueError(f"{where}: unknown OccupancyGrid feature(s) {bad}; allowed: {list(FEATURES)}")
-            out["features"] = tuple(feats)
+        out = given_fields(config, OccupancyGridConfig, "OccupancyGrid", where, label="OccupancyGrid ")
+        check_features(out, FEATURES, where, label="OccupancyGrid ")
         if "grid_size" in out:
             gs = np.asarray(out["grid_size"], dtype=np.float64)
             if gs.shape != (2, 2) or not np.all(np.isfinite(gs)) or not np.all(gs[:, 1] > gs[:, 0]):
@@ -88,27 +73,14 @@ class OccupancyGridConfig:
             if st.shape != (2,) or not np.all(np.isfinite(st)) or not np.all(st > 0):
                 raise ValueError(f"{where}: grid_step must be [step_x, step_y] with steps > 0, got {out['grid_step']!r}")
             out["grid_step"] = tuple(float(v) for v in st)
-        for k in ("absolute", "align_to_vehicle_axes", "clip", "as_image"):
-            if k in out and not isinstance(out[k], (bool, np.bool_)):
-                raise ValueError(f"{where}: {k} must be True or False, got {out[k]!r}")
+        check_flags(out, ("absolute", "align_to_vehicle_axes", "clip", "as_image"), where)
         if out.get("absolute"):
             raise ValueError(f"{where}: OccupancyGrid absolute=True is not supported (highway-env raises "
                              f"NotImplementedError for it); use absolute=False")
         if out.get("as_image"):
             raise ValueError(f"{where}: OccupancyGrid as_image=True is not supported; use as_image=False "
                              f"(values in [-1, 1])")
-        if out.get("features_range") is not None:
-            fr = out["features_range"]
-            if not isinstance(fr, dict):
-                raise ValueError(f"{where}: features_range must be a dict name -> [min, max], got {fr!r}")
-            items = []
-            for name, rng in fr.items():
-                if (np.shape(rng) != (2,) or not np.all(np.isfinite(np.asarray(rng, float)))
-                        or float(rng[1]) == float(rng[0])):
-                    raise ValueError(f"{where}: features_range[{name!r}] must be [min, max] with finite, distinct "
-                                     f"values, got {rng!r}")
-                items.append((str(name), (float(rng[0]), float(rng[1]))))
-            out["features_range"] = tuple(items)
+        check_features_range(out, where)
         cfg = OccupancyGridConfig(**out)
         if min(cfg.shape[1:]) < 1:
             raise ValueError(f"{where}: grid_size / grid_step give an empty grid {cfg.shape[1:]}")

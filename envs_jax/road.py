@@ -18,6 +18,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from envs_jax import lane_locate as LL
 from envs_jax import lanes as L
 
 
@@ -104,7 +105,7 @@ class Road:
     # -- traced queries -----------------------------------------------------------------------
     def closest_lane(self, px, py, heading):
         """``get_closest_lane_index(position, heading)``: argmin of distance-with-heading (first wins)."""
-        return L.locate(self.lanes, px, py, heading)[0].astype(jnp.int32)
+        return LL.locate(self.lanes, px, py, heading)[0].astype(jnp.int32)
 
     def next_lane(self, lane, s, route_roads, route_ids, route_len, route_ptr):
         """``RoadNetwork.next_lane``: the lane to follow once ``lane`` is finished.
@@ -137,7 +138,7 @@ class Road:
 
         # The projection of the position on the current centre line.
         qx, qy = L.position(self.lanes, lane, s, jnp.zeros_like(s))
-        circles = L.circle_coords(self.lanes, qx, qy)
+        circles = LL.circle_coords(self.lanes, qx, qy)
 
         # Candidates: every successor road (padded), each with its chosen lane and distance.
         succ = road_next[lane_road]  # [S]
@@ -151,7 +152,7 @@ class Road:
         lane_exists = jnp.arange(road_lanes.shape[-1])[None, :] < n_next[:, None]
         # distance of the projection to each candidate lane (only those: S x M lanes, not all)
         cand = jnp.maximum(lanes_of, 0)
-        q_s, q_lat = L.lane_coords(self.lanes, qx, qy, jax.tree_util.tree_map(lambda a: a[None, None], circles), cand)
+        q_s, q_lat = LL.lane_coords(self.lanes, qx, qy, jax.tree_util.tree_map(lambda a: a[None, None], circles), cand)
         dist = L.distance_from_coords(self.lanes.col("length")[cand], q_s, q_lat)  # [S, M]
         d_all = jnp.where(lane_exists, dist, jnp.inf)
         closest_id = jnp.argmin(d_all, axis=-1)

@@ -29,10 +29,12 @@ import numpy as np
 from flax import struct
 
 from envs_jax import drivers, kinematic_obs, pair_collisions
+from envs_jax import lane_locate as LL
 from envs_jax import lanes as L
 from envs_jax import vehicle as Veh
 from envs_jax.idm import IDMParams
 from envs_jax.road import Road
+from envs_jax.time_limit import step_limit
 from envs_jax.traffic_state import TrafficState
 
 
@@ -133,7 +135,7 @@ class TrafficEnv:
         heading = jnp.asarray(init["heading"], dtype) + jnp.zeros_like(x)
         speed = jnp.asarray(init["speed"], dtype) + jnp.zeros_like(x)
         alive = jnp.asarray(init["alive"], bool) & jnp.ones(x.shape, bool)
-        lane, s, lat, _ = L.locate(self.road.lanes, x, y, heading)
+        lane, s, lat, _ = LL.locate(self.road.lanes, x, y, heading)
         on_road = L.on_lane_coords(self.road.lanes.col("length")[lane], self.road.lanes.col("width")[lane], s, lat)
         ts = jnp.asarray(params.target_speeds, dtype)
         target = init.get("target_speed")
@@ -193,7 +195,7 @@ class TrafficEnv:
         acting = jnp.zeros(self.num_slots, bool).at[idx].set(True)
         tl, rp = drivers.follow_road(self.road, st, acting)
         ts = jnp.asarray(params.target_speeds, st.x.dtype)
-        circles = L.circle_coords(self.road.lanes, st.x[idx], st.y[idx])
+        circles = LL.circle_coords(self.road.lanes, st.x[idx], st.y[idx])
         new_tl, si, tsp = jax.vmap(lambda a, t, i, x, y, c, v: Veh.meta_action(self.road, a, t, i, x, y, c, v, ts))(
             action, tl[idx], st.speed_index[idx], st.x[idx], st.y[idx], circles, st.speed[idx])
         return st.replace(target_lane=tl.at[idx].set(new_tl), route_ptr=rp,
@@ -214,7 +216,7 @@ class TrafficEnv:
         x, y, h, v = keep(x, st.x), keep(y, st.y), keep(h, st.heading), keep(v, st.speed)
         crashed = keep(crashed, st.crashed)
         timer = jnp.where(alive & jnp.asarray(self.is_idm), st.timer + dt, st.timer)
-        lane, s, lat, _ = L.locate(self.road.lanes, x, y, h)
+        lane, s, lat, _ = LL.locate(self.road.lanes, x, y, h)
         lanes = self.road.lanes
         on_road = L.on_lane_coords(lanes.col("length")[lane], lanes.col("width")[lane], s, lat)
         lane, on_road = keep(lane, st.lane), keep(on_road, st.on_road)
@@ -244,7 +246,7 @@ class TrafficEnv:
         state = state.replace(time=state.time + 1)
         obs = self.observe(state, params, key)
         reward, cost, terminated, info = self.task.outcome(prev, state, action, params)
-        steps_limit = jnp.ceil(params.duration * self.policy_frequency - 1e-6)
+        steps_limit = step_limit(params.duration, self.policy_frequency)
         truncated = state.time >= steps_limit
         done = jnp.all(terminated) | truncated
         idx = np.asarray(self.controlled)

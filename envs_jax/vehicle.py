@@ -17,6 +17,7 @@ from __future__ import annotations
 import jax.numpy as jnp
 import numpy as np
 
+from envs_jax import lane_locate as LL
 from envs_jax import lanes as L
 
 LENGTH = 5.0
@@ -121,7 +122,7 @@ def meta_action(road, action, target_lane, speed_index, x, y, circles, speed, ta
     FASTER/SLOWER re-index from the *current* speed (+-1, clipped). LANE_LEFT/RIGHT
     move the target lane id by -+1 on the same road (clipped) and are accepted
     only if the new lane ``is_reachable_from`` the position ``x, y`` (``circles``: its
-    ``L.circle_coords``). Returns
+    ``LL.circle_coords``). Returns
     ``(target_lane, speed_index, target_speed)``.
     """
     n = target_speeds.shape[-1]
@@ -139,7 +140,7 @@ def meta_action(road, action, target_lane, speed_index, x, y, circles, speed, ta
     candidate = jnp.asarray(road.road_lanes)[lane_road, cand_id]
     lane_width = road.lanes.col("width")[candidate]
     lane_length = road.lanes.col("length")[candidate]
-    cs, clat = L.lane_coords(road.lanes, x, y, circles, candidate)
+    cs, clat = LL.lane_coords(road.lanes, x, y, circles, candidate)
     reachable = ((jnp.abs(clat) <= 2 * lane_width) & (0 <= cs) & (cs < lane_length + L.VEHICLE_LENGTH)
                  & ~jnp.asarray(road.lanes.forbidden)[candidate])
     changes_lane = (action == LANE_LEFT) | (action == LANE_RIGHT)

@@ -17,9 +17,9 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
-__all__ = ["TERMINAL_MASKS", "continuation"]
+from jaxsmarl.options import TERMINAL_MASKS
 
-TERMINAL_MASKS = ("sample", "batch_mean")
+__all__ = ["TERMINAL_MASKS", "continuation"]
 
 
 def continuation(terminated, truncated, rule: str = "sample", bootstrap_on_truncation: bool = True, dtype=None):

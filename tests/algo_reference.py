@@ -76,7 +76,8 @@ def short_run(name: str, layout_name: str) -> dict:
     """One seed of run ``name`` in layout ``layout_name``: every episode record, the learner's metrics and some
     parameter leaves of the final state."""
     from train.config import load_config
-    from train.loop import make_train, seed_keys
+    from train.build import make_train
+    from train.trainer import seed_keys
 
     scenario, algo, overrides = CONFIGS[name]
     cfg = load_config(scenario, algo, json.loads(json.dumps(overrides)))

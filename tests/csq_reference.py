@@ -48,8 +48,9 @@ def solver_outputs() -> dict:
 def short_run(scenario: str, preset: str | None) -> dict:
     """One seed of CSQ for ``SHORT`` steps: every episode record, the learner's losses, the final critics' output
     layer and first-layer biases (the losses of every update already depend on all weights)."""
+    from train.build import make_train
     from train.config import load_config
-    from train.loop import make_train, seed_keys
+    from train.trainer import seed_keys
 
     cfg = load_config(scenario, "csq", dict(SHORT), preset=preset)
     trainer = make_train(cfg)

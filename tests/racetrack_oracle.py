@@ -18,48 +18,25 @@ highway-env is imported in tests only.
 from __future__ import annotations
 
 import numpy as np
-
 from highway_env.envs.racetrack_env import RacetrackEnv
-from highway_env.vehicle.behavior import IDMVehicle
 from highway_env.vehicle.kinematics import Vehicle
 
-from tests.traffic_oracle import lane_numbers
+from tests.traffic_oracle import finish_records, multi_agent_config, record_frames
+from tests.traffic_oracle import inject as inject_state
 
 
 def oracle_config(controlled: int, observation: dict | None = None, action: dict | None = None, **extra) -> dict:
     """highway-env config of racetrack-v0 with ``controlled`` agents (multi-agent action/observation when > 1)."""
     obs = observation or dict(RacetrackEnv.default_config()["observation"])
     act = action or dict(RacetrackEnv.default_config()["action"])
-    cfg = {"controlled_vehicles": controlled}
-    if controlled > 1:
-        cfg["observation"] = {"type": "MultiAgentObservation", "observation_config": obs}
-        cfg["action"] = {"type": "MultiAgentAction", "action_config": act}
-    else:
-        cfg["observation"] = obs
-        cfg["action"] = act
-    cfg.update(extra)
-    return cfg
+    return multi_agent_config(controlled, obs, act, **extra)
 
 
 def inject(env, init: dict, controlled: tuple) -> list:
-    """Replace the vehicles of a reset ``env`` by the JAX initial state ``init`` (numpy, per slot);
-    returns highway-env's own lane-change timers of the IDM vehicles (slot order)."""
-    road = env.road
-    vehicles, ctrl, timers = [], [], []
-    for i in np.nonzero(init["alive"])[0]:
-        pos = [float(init["x"][i]), float(init["y"][i])]
-        h, v = float(init["heading"][i]), float(init["speed"][i])
-        if i in controlled:
-            veh = Vehicle(road, pos, h, v)
-            ctrl.append(veh)
-        else:
-            veh = IDMVehicle(road, pos, h, v)
-            timers.append(veh.timer)
-        vehicles.append(veh)
-    road.vehicles = vehicles
-    env.controlled_vehicles = ctrl
-    env.define_spaces()
-    return timers
+    """Replace the vehicles of a reset ``env`` by the JAX initial state ``init`` (numpy, per slot), the
+    controlled ones plain ``Vehicle`` s; returns highway-env's own lane-change timers of the IDM vehicles (slot
+    order)."""
+    return inject_state(env, init, controlled, vehicle_class=Vehicle, driver_draws=False)
 
 
 def agent_outcomes(env, actions, collision_cost: float, offroad_cost: float) -> tuple:
@@ -84,28 +61,8 @@ def run_oracle(init: dict, controlled: tuple, actions, config: dict, collision_c
     env = RacetrackEnv(config=config)
     env.reset(seed=0)
     timers = inject(env, init, controlled)
-    lanes = lane_numbers(env.road.network)
     vehicles = list(env.road.vehicles)
-    frames = []
-
-    def record():
-        frames.append({
-            "x": [v.position[0] for v in vehicles], "y": [v.position[1] for v in vehicles],
-            "heading": [v.heading for v in vehicles], "speed": [v.speed for v in vehicles],
-            "crashed": [v.crashed for v in vehicles],
-            "lane": [lanes[(v.lane_index[0], v.lane_index[1], int(v.lane_index[2]))] for v in vehicles],
-            # a plain Vehicle has no target lane (-1)
-            "target_lane": [lanes[(v.target_lane_index[0], v.target_lane_index[1], int(v.target_lane_index[2]))]
-                            if hasattr(v, "target_lane_index") else -1 for v in vehicles],
-        })
-
-    road_step = env.road.step
-
-    def step_and_record(dt):
-        road_step(dt)
-        record()
-
-    env.road.step = step_and_record
+    frames = record_frames(env, vehicles)
     grid = grid_ties and "OccupancyGrid" in str(config["observation"])
 
     def ties():
@@ -131,12 +88,8 @@ def run_oracle(init: dict, controlled: tuple, actions, config: dict, collision_c
         out["env_terminated"].append(terminated)
         if all(terms) or truncated:  # the JAX episode's ``done``
             break
-    out["frames"] = {key: np.array([f[key] for f in frames]) for key in frames[0]} if frames else {}
-    for key in ("obs", "reward", "terminated", "truncated", "cost", "env_reward", "env_terminated"):
-        out[key] = np.array(out[key])
-    if k == 1:
-        out["obs"] = out["obs"][:, None]
-    return out
+    return finish_records(out, frames, ("obs", "reward", "terminated", "truncated", "cost", "env_reward",
+                                        "env_terminated"), k)
 
 
 def tie_cells(env, observer, others_xy, eps: float = 1e-9) -> set:

@@ -131,7 +131,7 @@ def test_resume_and_overwrite_guards(tmp_path, small_config):
 
 
 # ---------------------------------------------------------------------------------------------------------
-# The same for an on-policy run (MAPPO-L) whose seeds are split over two CPU devices (train.run.seed_parallel).
+# The same for an on-policy run (MAPPO-L) whose seeds are split over two CPU devices (train.parallel.seed_parallel).
 # The device count is fixed when JAX starts, so this runs in a fresh interpreter and reports back as JSON.
 
 _TWO_DEVICE_RESUME = textwrap.dedent("""

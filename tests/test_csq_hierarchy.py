@@ -166,7 +166,8 @@ def test_traffic_autoreset_statistics_and_flat_observations():
 def test_highway_k_agents_trains_through_the_loop():
     """Three controlled vehicles, one leader and two followers, through the off-policy loop and the greedy
     evaluation; the critics' loss falls."""
-    from train.loop import make_train, seed_keys
+    from train.build import make_train
+    from train.trainer import seed_keys
 
     cfg = load_config("highway", "csq", dict(agents=3, hierarchy="0|1,2", total_steps=120, num_envs=2, chunk_steps=120,
                                              num_seeds=1, warmup=16, batch_size=16, checkpoint_every=0,

@@ -63,7 +63,7 @@ def read(log) -> str:
 
 
 def restore_all(run_dir: str):
-    from train.run import restore_run
+    from train.restore import restore_run
 
     config, _, state, meta = restore_run(run_dir)
     return state, meta

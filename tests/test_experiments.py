@@ -126,7 +126,7 @@ def test_evaluation_stops_at_the_time_limit_with_the_same_records():
     import jax.numpy as jnp
 
     from jaxsmarl import metrics
-    from train.loop import episode_step_limit, make_env, make_evaluate
+    from train.trainer import episode_step_limit, make_env, make_evaluate
 
     env, wrapped, params = make_env("merge")
     limit = episode_step_limit(env, params)

@@ -1,4 +1,4 @@
-"""``lanes.locate`` (the simulator's closest-lane search, with the sine lanes' trigonometry run only
+"""``lane_locate.locate`` (the simulator's closest-lane search, with the sine lanes' trigonometry run only
 where a lower bound lets a sine lane win) against the brute-force all-lane search and highway-env,
 on random poses and on adversarial ones: lane ends, lane borders, sine lanes' crests, headings at
 the sine lanes' steepest slope."""
@@ -11,6 +11,8 @@ import numpy as np
 import pytest
 
 import envs_jax
+from envs_jax import all_lanes as AL
+from envs_jax import lane_locate as LL
 from envs_jax import lanes as L
 from tests.highway_oracle import make_oracle_env, oracle_lanes
 
@@ -39,8 +41,8 @@ def _poses(name: str, n_random: int = 4000):
 
 
 def _dense(lanes, px, py, h):
-    cost, s_all, lat_all = L.distance_with_heading_all(lanes, px, py, h)
-    lane = L.first_argmin(cost)
+    cost, s_all, lat_all = AL.distance_with_heading_all(lanes, px, py, h)
+    lane = AL.first_argmin(cost)
     pick = lambda a: jnp.take_along_axis(a, lane[:, None], axis=-1)[:, 0]
     return lane, pick(s_all), pick(lat_all), cost
 
@@ -51,7 +53,7 @@ def test_locate_equals_brute_force_x64(name, x64):
     lanes = envs_jax.make(name).road.lanes
     pts, heads = _poses(name)
     px, py, h = (jnp.asarray(a) for a in (pts[:, 0], pts[:, 1], heads))
-    lane, s, lat, _ = jax.jit(jax.vmap(lambda a, b, c: L.locate(lanes, a, b, c)))(px, py, h)
+    lane, s, lat, _ = jax.jit(jax.vmap(lambda a, b, c: LL.locate(lanes, a, b, c)))(px, py, h)
     ref_lane, ref_s, ref_lat, _ = jax.jit(lambda a, b, c: _dense(lanes, a, b, c))(px, py, h)
     np.testing.assert_array_equal(np.asarray(lane), np.asarray(ref_lane))
     np.testing.assert_allclose(np.asarray(s), np.asarray(ref_s), rtol=0, atol=1e-9)
@@ -74,7 +76,7 @@ def test_locate_equals_brute_force_float32(name):
     lanes = envs_jax.make(name).road.lanes
     pts, heads = _poses(name)
     px, py, h = (jnp.asarray(a, jnp.float32) for a in (pts[:, 0], pts[:, 1], heads))
-    lane, s, lat, _ = jax.jit(jax.vmap(lambda a, b, c: L.locate(lanes, a, b, c)))(px, py, h)
+    lane, s, lat, _ = jax.jit(jax.vmap(lambda a, b, c: LL.locate(lanes, a, b, c)))(px, py, h)
     ref_lane, ref_s, ref_lat, cost = jax.jit(lambda a, b, c: _dense(lanes, a, b, c))(px, py, h)
     same = _assert_same_lane_up_to_ties(lane, ref_lane, cost)
     np.testing.assert_allclose(np.asarray(s)[same], np.asarray(ref_s)[same], rtol=1e-6, atol=1e-4)
@@ -92,7 +94,7 @@ def test_locate_matches_highway_env(name, x64):
     pts, heads = _poses(name, n_random=1000)
     pick = np.random.default_rng(3).choice(len(pts), size=min(len(pts), 2500), replace=False)
     pts, heads = pts[pick], heads[pick]
-    ours = np.asarray(jax.jit(jax.vmap(lambda a, b, c: L.locate(env.road.lanes, a, b, c)[0]))(
+    ours = np.asarray(jax.jit(jax.vmap(lambda a, b, c: LL.locate(env.road.lanes, a, b, c)[0]))(
         jnp.asarray(pts[:, 0]), jnp.asarray(pts[:, 1]), jnp.asarray(heads)))
     lanes = [lane for _, _, _, lane in oracle_lanes(name)]
     for k, (p, h) in enumerate(zip(pts, heads)):
@@ -108,11 +110,11 @@ def test_sine_lower_bound_is_a_lower_bound(name, x64):
     lanes = envs_jax.make(name).road.lanes
     pts, heads = _poses(name)
     rows = lanes.sine_rows
-    r = {f: lanes.col(f, rows) for f in L._FIELDS}
+    r = {f: lanes.col(f, rows) for f in L.FIELDS}
     px, py, h = (jnp.asarray(a)[:, None] for a in (pts[:, 0], pts[:, 1], heads))
-    s, lat_base = L._linear_local(r, px, py)
-    bound = np.asarray(L.sine_lower_bound(r, s, lat_base, h))
-    exact = np.asarray(L.distance_with_heading_all(lanes, px[:, 0], py[:, 0], h[:, 0])[0])[:, rows]
+    s, lat_base = L.linear_local(r, px, py)
+    bound = np.asarray(LL.sine_lower_bound(r, s, lat_base, h))
+    exact = np.asarray(AL.distance_with_heading_all(lanes, px[:, 0], py[:, 0], h[:, 0])[0])[:, rows]
     assert np.all(bound <= exact + 1e-12)
     assert np.mean(bound > 1.0) > 0.5  # and it is not vacuous: most poses rule the sine lanes out
 
@@ -124,10 +126,10 @@ def test_locate_batched_rules_agree():
     pts, heads = _poses("roundabout", n_random=600)
     n = (len(pts) // 6) * 6
     px, py, h = (jnp.asarray(a[:n], jnp.float32) for a in (pts[:, 0], pts[:, 1], heads))
-    flat = jax.jit(lambda a, b, c: L.locate(lanes, a, b, c))(px, py, h)
-    nested = jax.jit(jax.vmap(jax.vmap(lambda a, b, c: L.locate(lanes, a, b, c))))(
+    flat = jax.jit(lambda a, b, c: LL.locate(lanes, a, b, c))(px, py, h)
+    nested = jax.jit(jax.vmap(jax.vmap(lambda a, b, c: LL.locate(lanes, a, b, c))))(
         px.reshape(-1, 3, 2), py.reshape(-1, 3, 2), h.reshape(-1, 3, 2))
-    shared = jax.jit(jax.vmap(lambda a, b: L.locate(lanes, a, b, h[0])))(px, py)
+    shared = jax.jit(jax.vmap(lambda a, b: LL.locate(lanes, a, b, h[0])))(px, py)
     ref_lane, ref_s, ref_lat, cost = _dense(lanes, px, py, h)
     for got in (flat, jax.tree_util.tree_map(lambda a: a.reshape((n,) + a.shape[3:]), nested)):
         same = _assert_same_lane_up_to_ties(got[0], ref_lane, cost)
@@ -146,8 +148,8 @@ def test_lane_coords_equal_local_coordinates(name, x64):
     pts = jnp.asarray(rng.uniform(lo, hi, size=(300, 2)))
     for k in range(lanes.size):
         idx = jnp.full(300, k, jnp.int32)
-        circles = L.circle_coords(lanes, pts[:, 0], pts[:, 1])
-        s, lat = L.lane_coords(lanes, pts[:, 0], pts[:, 1], circles, idx)
+        circles = LL.circle_coords(lanes, pts[:, 0], pts[:, 1])
+        s, lat = LL.lane_coords(lanes, pts[:, 0], pts[:, 1], circles, idx)
         es, elat = L.local_coordinates(lanes, idx, pts[:, 0], pts[:, 1])
         np.testing.assert_allclose(np.asarray(s), np.asarray(es), rtol=0, atol=1e-9)
         np.testing.assert_allclose(np.asarray(lat), np.asarray(elat), rtol=0, atol=1e-9)

@@ -370,7 +370,7 @@ def test_short_training_run_end_to_end(tmp_path):
 def test_actor_saturation_report_on_a_saved_run(tmp_path):
     """benchmarks/actor_saturation.py on a tiny racetrack run: at the reset states the largest |greedy action| is
     tanh of the largest |pre-activation| it reports, per seed and agent; its flag follows the threshold."""
-    from train.loop import make_train
+    from train.build import make_train
     from train.run import run
 
     sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "benchmarks"))

@@ -21,10 +21,10 @@ import pytest
 from jaxsmarl import buffers, metrics
 from jaxsmarl.checkpoints import Checkpointer
 from jaxsmarl.learner_log import LearnerLog
+from tests.test_checkpoints import _leaves_equal
 from train import __main__ as cli
 from train.config import load_config
 from train.run import run
-from tests.test_checkpoints import _leaves_equal
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
@@ -286,7 +286,7 @@ def test_no_valid_checkpoint_one_line_exit_2(tmp_path, small_config, capsys):
 
 
 def test_eval_only_skips_a_damaged_newest_checkpoint(tmp_path, small_config, capsys):
-    from train.run import evaluate_checkpoint
+    from train.evaluation import evaluate_checkpoint
 
     out = str(tmp_path / "e")
     run(small_config, out, verbose=False, max_chunks=2)

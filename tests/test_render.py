@@ -13,9 +13,9 @@ from PIL import Image  # noqa: E402
 import envs_jax  # noqa: E402
 from envs_jax import lanes as L  # noqa: E402
 from envs_jax.road import RoadNetwork  # noqa: E402
-from train import render  # noqa: E402
+from train import drawing, episode_record, render  # noqa: E402
 
-BG, ROAD, WHITE = render.COLORS["background"], render.COLORS["road"], render.COLORS["marking"]
+BG, ROAD, WHITE = drawing.COLORS["background"], drawing.COLORS["road"], drawing.COLORS["marking"]
 
 
 def _road(*specs):
@@ -29,8 +29,8 @@ def test_straight_lane_markings_at_known_pixels():
     # Lane from (0, 0) to (40, 0), width 4: left side (lat -2, world y = -2) continuous line, right side
     # (y = +2) striped. View: origin (-5, -10), 4 px/m -> pixel = ((x + 5) * 4, (y + 10) * 4).
     road = _road(L.straight([0, 0], [40, 0], line_types=(L.LINE_CONTINUOUS_LINE, L.LINE_STRIPED)))
-    view = render.View(-5.0, -10.0, 4.0, 200, 80)
-    img = np.asarray(render.draw_road(road, view))
+    view = drawing.View(-5.0, -10.0, 4.0, 200, 80)
+    img = np.asarray(drawing.draw_road(road, view))
     px = lambda x: int((x + 5) * 4)
     row_left, row_right, row_center = 32, 48, 40  # y = -2, +2, 0
     # continuous line along the whole lane (s = 0.5 .. 39.5), nothing beyond its end
@@ -54,8 +54,8 @@ def test_continuous_and_none_line_types_and_vertical_lane():
     # A northbound lane x = 10, y from 30 down to 0 (heading -90 deg): its left side (lat -2) lies at
     # x = 10 + 2 = 12 ... lateral = (-dir_y, dir_x) = (1, 0), so lat -2 -> x = 8, lat +2 -> x = 12.
     road = _road(L.straight([10, 30], [10, 0], line_types=(L.LINE_CONTINUOUS, L.LINE_NONE)))
-    view = render.View(0.0, -5.0, 5.0, 100, 200)
-    img = np.asarray(render.draw_road(road, view))
+    view = drawing.View(0.0, -5.0, 5.0, 100, 200)
+    img = np.asarray(drawing.draw_road(road, view))
     col_left, col_right = int(8 * 5), int(12 * 5)
     for y in np.arange(0.5, 29.6, 0.5):
         assert tuple(img[int((y + 5) * 5), col_left]) == WHITE, y  # CONTINUOUS: no gaps
@@ -68,8 +68,8 @@ def test_circular_lane_marking_lies_on_the_circle():
     # pixel lies within a pixel of radius 18 or 22 (chords of 4.33 m deviate by < 0.12 m).
     road = _road(L.circular([0, 0], 20, 0.0, -np.pi / 2, clockwise=False,
                             line_types=(L.LINE_CONTINUOUS, L.LINE_CONTINUOUS)))
-    view = render.View(-30.0, -30.0, 4.0, 240, 240)
-    img = np.asarray(render.draw_road(road, view))
+    view = drawing.View(-30.0, -30.0, 4.0, 240, 240)
+    img = np.asarray(drawing.draw_road(road, view))
     rows, cols = np.nonzero(np.all(img == WHITE, axis=-1))
     r = np.hypot((cols + 0.5) / 4 - 30, (rows + 0.5) / 4 - 30)
     assert rows.size > 100
@@ -80,8 +80,8 @@ def test_circular_lane_marking_lies_on_the_circle():
 @pytest.mark.parametrize("heading_deg", [0.0, 30.0, -120.0])
 def test_vehicle_rectangle_pixels_at_known_pose(heading_deg):
     h = math.radians(heading_deg)
-    view = render.View(0.0, 0.0, 10.0, 200, 200)
-    img = np.asarray(render.draw_vehicle(Image.new("RGB", (200, 200), BG), view, 10.0, 10.0, h, "leader"))
+    view = drawing.View(0.0, 0.0, 10.0, 200, 200)
+    img = np.asarray(drawing.draw_vehicle(Image.new("RGB", (200, 200), BG), view, 10.0, 10.0, h, "leader"))
     # Independent point-in-rectangle test for every pixel centre (in pixels: centre (100, 100), 50 x 20 px).
     jj, ii = np.mgrid[0:200, 0:200]
     dx, dy = ii + 0.5 - 100, jj + 0.5 - 100
@@ -90,42 +90,42 @@ def test_vehicle_rectangle_pixels_at_known_pose(heading_deg):
     inside = (np.abs(lon) < 25 - 1.5) & (np.abs(lat) < 10 - 1.5) & (lon < 25 - 6 - 1.5)  # clear of edges and the front bar
     outside = (np.abs(lon) > 25 + 1.5) | (np.abs(lat) > 10 + 1.5)
     colour = lambda c: np.all(img == np.array(c), axis=-1)
-    assert colour(render.COLORS["leader"])[inside].all()
+    assert colour(drawing.COLORS["leader"])[inside].all()
     assert colour(BG)[outside].all()
     # the dark front bar sits at the heading's end, not at the rear
     front = (int(100 + 24 * math.cos(h)), int(100 + 24 * math.sin(h)))
     rear = (int(100 - 23 * math.cos(h)), int(100 - 23 * math.sin(h)))
-    assert tuple(img[front[1], front[0]]) == render.COLORS["outline"]
-    assert tuple(img[rear[1], rear[0]]) == render.COLORS["leader"]
+    assert tuple(img[front[1], front[0]]) == drawing.COLORS["outline"]
+    assert tuple(img[rear[1], rear[0]]) == drawing.COLORS["leader"]
 
 
 def test_roles_and_crash_colours():
-    view = render.View(0.0, 0.0, 10.0, 100, 60)
+    view = drawing.View(0.0, 0.0, 10.0, 100, 60)
     bg = Image.new("RGB", (100, 60), BG)
-    frame = np.asarray(render.draw_frame(bg, view, [2.5, 7.0], [3.0, 3.0], [0.0, 0.0], [False, True]))
-    assert tuple(frame[30, 20]) == render.COLORS["leader"]  # (2.0 m, 3.0 m)
-    assert tuple(frame[30, 65]) == render.COLORS["crashed"]  # the crashed follower at (6.5 m, 3.0 m)
-    frame = np.asarray(render.draw_frame(bg, view, [2.5, 7.0], [3.0, 3.0], [0.0, 0.0], [False, False]))
-    assert tuple(frame[30, 65]) == render.COLORS["follower"]
+    frame = np.asarray(drawing.draw_frame(bg, view, [2.5, 7.0], [3.0, 3.0], [0.0, 0.0], [False, True]))
+    assert tuple(frame[30, 20]) == drawing.COLORS["leader"]  # (2.0 m, 3.0 m)
+    assert tuple(frame[30, 65]) == drawing.COLORS["crashed"]  # the crashed follower at (6.5 m, 3.0 m)
+    frame = np.asarray(drawing.draw_frame(bg, view, [2.5, 7.0], [3.0, 3.0], [0.0, 0.0], [False, False]))
+    assert tuple(frame[30, 65]) == drawing.COLORS["follower"]
     with pytest.raises(ValueError, match="role must be"):
-        render.draw_vehicle(bg, view, 0, 0, 0, "ego")
+        drawing.draw_vehicle(bg, view, 0, 0, 0, "ego")
 
 
 def test_fit_view_contains_points_and_keeps_scale():
-    v = render.fit_view([0, 100], [0, 10], margin=10, min_extent=60, max_width=600, max_height=600, max_scale=8)
+    v = drawing.fit_view([0, 100], [0, 10], margin=10, min_extent=60, max_width=600, max_height=600, max_scale=8)
     assert v.width % 2 == 0 and v.height % 2 == 0 and v.width <= 600
     assert v.scale == pytest.approx(600 / 120)
     px, py = v.to_pixels([0, 100], [0, 10])
     assert np.all((px > 0) & (px < v.width) & (py > 0) & (py < v.height))
     with pytest.raises(ValueError, match="finite point"):
-        render.fit_view([np.nan], [np.nan])
+        drawing.fit_view([np.nan], [np.nan])
 
 
 def test_random_episode_gif_has_one_frame_per_stride_and_replays_eagerly(tmp_path):
     env = envs_jax.make("merge")
     params = env.default_params
     out = str(tmp_path / "merge.gif")
-    res = render.render_episode(env, params, render.simple_policy(env, "random"), out, seed=3, stride=4, mp4=False)
+    res = render.render_episode(env, params, episode_record.simple_policy(env, "random"), out, seed=3, stride=4, mp4=False)
     rec = res["record"]
     n, F = rec["n"], env.frames
     assert len(rec["x"]) == 1 + n * F
@@ -144,7 +144,7 @@ def test_random_episode_gif_has_one_frame_per_stride_and_replays_eagerly(tmp_pat
     gif.seek(0)
     first = np.asarray(gif.convert("RGB"))
     px, py = res["view"].to_pixels(rec["x"][0, 0], rec["y"][0, 0])
-    assert np.abs(first[int(py), int(px) - 3].astype(int) - render.COLORS["leader"]).max() <= 8
+    assert np.abs(first[int(py), int(px) - 3].astype(int) - drawing.COLORS["leader"]).max() <= 8
 
 
 def test_cli_errors_exit_2(capsys, tmp_path):
@@ -163,7 +163,7 @@ def test_batched_lane_geometry_matches_pointwise_lane_positions(scenario):
     """The road's surfaces and markings come from one padded, jitted batch per lane table; every point must be
     the lane's own position() evaluated point by point (straight, sine and circular lanes)."""
     lanes = envs_jax.make(scenario).road.lanes
-    polys = render.lane_surfaces(lanes, step=7.0)
+    polys = drawing.lane_surfaces(lanes, step=7.0)
     width, length = lanes.np_col("width"), lanes.np_col("length")
     for i in sorted({0, lanes.size // 2, lanes.size - 1}):
         k = len(polys[i]) // 2
@@ -172,7 +172,7 @@ def test_batched_lane_geometry_matches_pointwise_lane_positions(scenario):
             for lat, (x, y) in ((-width[i] / 2, polys[i][j]), (width[i] / 2, polys[i][-1 - j])):
                 px, py = L.position(lanes, i, float(s[j]), float(lat))
                 np.testing.assert_allclose([x, y], [float(px), float(py)], atol=1e-3)
-    segs = render.marking_segments(lanes)
+    segs = drawing.marking_segments(lanes)
     assert len(segs) > 0 and np.isfinite(np.asarray(segs)).all()
     x0, y0, x1, y1 = segs[-1]
-    assert math.hypot(x1 - x0, y1 - y0) > 0.5 * render.STRIPE_LENGTH
+    assert math.hypot(x1 - x0, y1 - y0) > 0.5 * drawing.STRIPE_LENGTH

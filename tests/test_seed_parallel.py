@@ -4,7 +4,7 @@ The hang: with ``jax_num_cpu_devices = 2`` on 2 cores, both devices initialised 
 threads of XLA:CPU's intra-op pool sat in LAPACK's QR kernel (``jax.nn.initializers.orthogonal``), each
 waiting for work it had queued on that same, fully blocked pool. A hang is intermittent, so these checks look
 at the compiled programs instead, which is deterministic: no custom call in the PPO agent's init, and no
-cross-device collective in a seed-parallel program (:func:`train.run.seed_parallel`).
+cross-device collective in a seed-parallel program (:func:`train.parallel.seed_parallel`).
 """
 
 import os
@@ -20,8 +20,8 @@ import pytest
 from jaxsmarl.algos.mappo_l import MAPPOL
 from jaxsmarl.algos.ppo_base import PPOConfig
 from jaxsmarl.initializers import orthogonal_init
-from train.loop import seed_keys
-from train.run import seed_loop
+from train.parallel import seed_loop
+from train.trainer import seed_keys
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 COLLECTIVES = ("all-reduce", "all-gather", "collective-permute", "all-to-all", "reduce-scatter")
@@ -52,7 +52,7 @@ _TWO_DEVICES = textwrap.dedent("""
     import jax
     jax.config.update("jax_num_cpu_devices", 2)
     import jax.numpy as jnp
-    from train.run import seed_parallel, seed_sharding
+    from train.parallel import seed_parallel, seed_sharding
 
     def fn(x, n):  # a while loop whose trip count depends on the seed's data, like sparse_map's
         def body(c):
@@ -117,7 +117,7 @@ def test_training_chunks_run_seeds_in_sequence(algo):
     # Seeds 0 and 1 of a 3-seed run equal those of a 2-seed run, bit for bit: each seed is computed by the same
     # unbatched program (batched programs of 2 and 3 seeds differ in round-off). One seed alone is not compared:
     # XLA inlines a one-trip loop and fuses that program differently.
-    import train.run as run
+    import train.programs as programs
     from train.config import load_config
 
     if jax.default_backend() != "cpu":
@@ -129,7 +129,7 @@ def test_training_chunks_run_seeds_in_sequence(algo):
     over.update(checkpoint_every=0, eval_episodes=0)
     final = {}
     for s in (2, 3):
-        prog = run._program(load_config("racetrack", algo, dict(over, num_seeds=s)))
+        prog = programs.program(load_config("racetrack", algo, dict(over, num_seeds=s)))
         assert prog["trainer"].seeds_in_sequence
         state = prog["init"](seed_keys(prog["trainer"].config))
         state, _ = prog["chunk"](state, jnp.int32(0))

@@ -69,8 +69,8 @@ def test_shape_changing_keys_are_refused():
 
 def test_keys_the_program_reads_as_numbers_are_refused():
     # MADDPG's multiplier bounds are checked in Python when its agent is built: not sweepable, said before compiling
-    from train.loop import make_env
     from train.sweep import check_traceable
+    from train.trainer import make_env
 
     cfg = load_config("racetrack", "cs-maddpg", dict(total_steps=64, chunk_steps=64, checkpoint_every=0,
                                                       warmup=16, batch_size=8, buffer_size=64, eval_episodes=1))

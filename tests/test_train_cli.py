@@ -8,11 +8,12 @@ import jax
 import numpy as np
 import pytest
 
+import train.programs
 import train.run
 from train import __main__ as cli
+from train.build import make_train
 from train.config import CONFIG_DIR, DEFAULTS, HELP, load_config, validate
-from train.loop import make_train, seed_keys
-
+from train.trainer import seed_keys
 
 # ---------------------------------------------------------------------------------------------------------
 # Validation: every mistake is a ValueError naming the fix, raised before anything is compiled.
@@ -64,7 +65,7 @@ def test_cli_rejects_bad_config_before_compiling(monkeypatch, capsys):
         raise AssertionError("compiled despite an invalid configuration")
 
     monkeypatch.setattr(train.run, "run", boom)
-    monkeypatch.setattr(train.run, "make_train", boom)
+    monkeypatch.setattr(train.programs, "make_train", boom)
     assert cli.main(["--set", "gamma=2", "--out", "unused"]) == 2
     assert "'gamma' must lie in" in capsys.readouterr().err
     assert cli.main(["--scenario", "racetrack", "--algo", "sq"]) == 2

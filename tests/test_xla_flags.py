@@ -1,9 +1,9 @@
-"""train.run.use_all_cpu_cores adds its XLA:CPU flags only where jaxlib knows them: an unknown XLA_FLAGS entry
+"""train.xla_flags.use_all_cpu_cores adds its XLA:CPU flags only where jaxlib knows them: an unknown XLA_FLAGS entry
 aborts the process at backend start-up, so on an older jaxlib the flags must stay out."""
 
 import os
 
-import train.run as run
+import train.xla_flags as run
 
 
 def _flags_after(monkeypatch, version, xla_flags):
@@ -52,7 +52,7 @@ def test_flags_survive_a_stray_word_in_the_users_flags():
     import subprocess
     import sys
 
-    code = ("import jax, jax.numpy as jnp, train.run as run; run.use_all_cpu_cores(); "
+    code = ("import jax, jax.numpy as jnp, train.xla_flags as run; run.use_all_cpu_cores(); "
             "t = jax.jit(lambda x: (x * x).sum(0)).lower(jnp.ones((512, 64))).compile().as_text(); "
             "print('ynn' in t, run._jaxlib_version() >= run.XLA_CPU_FLAGS_SINCE)")
     env = dict(os.environ, XLA_FLAGS="--xla_cpu_multi_thread_eigen=false stray_word", JAX_PLATFORMS="cpu")

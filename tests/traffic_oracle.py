@@ -21,7 +21,6 @@ highway-env is imported here only; it must never be imported outside ``tests/``.
 from __future__ import annotations
 
 import numpy as np
-
 from highway_env.envs.highway_env import HighwayEnv, HighwayEnvFast
 from highway_env.envs.merge_env import MergeEnv
 from highway_env.envs.roundabout_env import RoundaboutEnv
@@ -31,20 +30,24 @@ CLASSES = {"highway-v0": HighwayEnv, "highway-fast-v0": HighwayEnvFast, "merge-v
            "roundabout-v0": RoundaboutEnv}
 
 
-def oracle_config(name: str, controlled: int, observation: dict | None = None, **extra) -> dict:
-    """highway-env config of a task with ``controlled`` agents (multi-agent action/observation when > 1)."""
-    defaults = CLASSES[name].default_config()
-    obs = observation or defaults["observation"]
-    action = defaults["action"]
+def multi_agent_config(controlled: int, observation: dict, action: dict, **extra) -> dict:
+    """highway-env config with ``controlled`` agents: ``observation``/``action`` wrapped in highway-env's
+    ``MultiAgentObservation``/``MultiAgentAction`` when there are several, then ``extra``."""
     cfg = {"controlled_vehicles": controlled}
     if controlled > 1:
-        cfg["observation"] = {"type": "MultiAgentObservation", "observation_config": obs}
+        cfg["observation"] = {"type": "MultiAgentObservation", "observation_config": observation}
         cfg["action"] = {"type": "MultiAgentAction", "action_config": action}
     else:
-        cfg["observation"] = obs
+        cfg["observation"] = observation
         cfg["action"] = action
     cfg.update(extra)
     return cfg
+
+
+def oracle_config(name: str, controlled: int, observation: dict | None = None, **extra) -> dict:
+    """highway-env config of a task with ``controlled`` agents (multi-agent action/observation when > 1)."""
+    defaults = CLASSES[name].default_config()
+    return multi_agent_config(controlled, observation or defaults["observation"], defaults["action"], **extra)
 
 
 def lane_numbers(network) -> dict:
@@ -57,15 +60,17 @@ def lane_numbers(network) -> dict:
     return out
 
 
-def inject(env, init: dict, controlled: tuple, routes: dict | None = None) -> list:
+def inject(env, init: dict, controlled: tuple, routes: dict | None = None, vehicle_class=None,
+           driver_draws: bool = True) -> list:
     """Replace the vehicles of a reset ``env`` by the JAX initial state ``init`` (numpy, per slot).
 
-    ``routes``: slot -> planned route (list of ``(from, to, id or None)``); each is checked against
-    highway-env's own ``plan_route_to`` its last node. Returns the lane-change timers highway-env
-    computed itself for the IDM vehicles (slot order).
+    Controlled slots become ``vehicle_class`` (default: the action type's), the others ``IDMVehicle`` s, with the
+    JAX drivers' ``DELTA`` and target speed when ``driver_draws``. ``routes``: slot -> planned route (list of
+    ``(from, to, id or None)``); each is checked against highway-env's own ``plan_route_to`` its last node.
+    Returns the lane-change timers highway-env computed itself for the IDM vehicles (slot order).
     """
     road = env.road
-    vehicle_class = env.action_type.vehicle_class
+    vehicle_class = env.action_type.vehicle_class if vehicle_class is None else vehicle_class
     vehicles, ctrl, timers = [], [], []
     for i in np.nonzero(init["alive"])[0]:
         pos = [float(init["x"][i]), float(init["y"][i])]
@@ -75,8 +80,9 @@ def inject(env, init: dict, controlled: tuple, routes: dict | None = None) -> li
             ctrl.append(veh)
         else:
             veh = IDMVehicle(road, pos, h, v)
-            veh.DELTA = float(init["delta"][i])
-            veh.target_speed = float(init["target_speed"][i])
+            if driver_draws:
+                veh.DELTA = float(init["delta"][i])
+                veh.target_speed = float(init["target_speed"][i])
             timers.append(veh.timer)
             if isinstance(env, HighwayEnvFast):
                 veh.check_collisions = False
@@ -89,6 +95,44 @@ def inject(env, init: dict, controlled: tuple, routes: dict | None = None) -> li
     env.controlled_vehicles = ctrl
     env.define_spaces()
     return timers
+
+
+def record_frames(env, vehicles: list) -> list:
+    """Hook ``env.road.step`` so that every simulation frame appends the state of ``vehicles`` (positions,
+    headings, speeds, crashes, lane and target lane as JAX lane numbers; -1 for a vehicle without a target lane)
+    to the returned list."""
+    lanes = lane_numbers(env.road.network)
+    frames = []
+
+    def record():
+        frames.append({
+            "x": [v.position[0] for v in vehicles], "y": [v.position[1] for v in vehicles],
+            "heading": [v.heading for v in vehicles], "speed": [v.speed for v in vehicles],
+            "crashed": [v.crashed for v in vehicles],
+            "lane": [lanes[(v.lane_index[0], v.lane_index[1], int(v.lane_index[2]))] for v in vehicles],
+            "target_lane": [lanes[(v.target_lane_index[0], v.target_lane_index[1], int(v.target_lane_index[2]))]
+                            if hasattr(v, "target_lane_index") else -1 for v in vehicles],
+        })
+
+    road_step = env.road.step
+
+    def step_and_record(dt):
+        road_step(dt)
+        record()
+
+    env.road.step = step_and_record
+    return frames
+
+
+def finish_records(out: dict, frames: list, keys, k: int) -> dict:
+    """``out`` with the recorded ``frames`` stacked per field, the per-step lists ``keys`` as arrays and, for one
+    agent, an agent axis added to the observations."""
+    out["frames"] = {key: np.array([f[key] for f in frames]) for key in frames[0]} if frames else {}
+    for key in keys:
+        out[key] = np.array(out[key])
+    if k == 1:
+        out["obs"] = out["obs"][:, None]
+    return out
 
 
 def agent_outcomes(env, actions) -> tuple:
@@ -113,27 +157,7 @@ def run_oracle(name: str, init: dict, controlled: tuple, actions, config: dict, 
     env = CLASSES[name](config=config)
     env.reset(seed=0)
     timers = inject(env, init, controlled, routes)
-    lanes = lane_numbers(env.road.network)
-    vehicles = list(env.road.vehicles)
-    frames = []
-
-    def record():
-        frames.append({
-            "x": [v.position[0] for v in vehicles], "y": [v.position[1] for v in vehicles],
-            "heading": [v.heading for v in vehicles], "speed": [v.speed for v in vehicles],
-            "crashed": [v.crashed for v in vehicles],
-            "lane": [lanes[(v.lane_index[0], v.lane_index[1], int(v.lane_index[2]))] for v in vehicles],
-            "target_lane": [lanes[(v.target_lane_index[0], v.target_lane_index[1], int(v.target_lane_index[2]))]
-                            for v in vehicles],
-        })
-
-    road_step = env.road.step
-
-    def step_and_record(dt):
-        road_step(dt)
-        record()
-
-    env.road.step = step_and_record
+    frames = record_frames(env, list(env.road.vehicles))
     obs0 = env.observation_type.observe()
     out = {"obs": [np.asarray(obs0)], "reward": [], "terminated": [], "truncated": [], "env_reward": [],
            "env_terminated": [], "parts": [], "timers": np.array(timers)}
@@ -151,9 +175,4 @@ def run_oracle(name: str, init: dict, controlled: tuple, actions, config: dict, 
         out["env_reward"].append(reward)
         out["env_terminated"].append(terminated)
         out["parts"].append(parts)
-    out["frames"] = {key: np.array([f[key] for f in frames]) for key in frames[0]} if frames else {}
-    for key in ("obs", "reward", "terminated", "truncated", "env_reward", "env_terminated"):
-        out[key] = np.array(out[key])
-    if k == 1:
-        out["obs"] = out["obs"][:, None]
-    return out
+    return finish_records(out, frames, ("obs", "reward", "terminated", "truncated", "env_reward", "env_terminated"), k)

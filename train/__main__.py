@@ -11,7 +11,7 @@ import json
 import os
 import sys
 
-from train.config import ALGOS, COMMON, COMMON_HELP, SCENARIOS, load_config, preset_values, read_run_config
+from train.config import ALGOS, COMMON, COMMON_HELP, SCENARIOS, load_config, parse_set, preset_values, read_run_config
 
 
 def _keys_help() -> str:
@@ -128,22 +128,9 @@ def parse_args(argv=None) -> argparse.Namespace:
     return p.parse_args(argv)
 
 
-def _parse_set(items: list[str]) -> dict:
-    out = {}
-    for item in items:
-        if "=" not in item:
-            raise ValueError(f"--set expects KEY=VALUE, got {item!r}")
-        k, v = item.split("=", 1)
-        try:
-            out[k.strip()] = json.loads(v)
-        except json.JSONDecodeError:
-            out[k.strip()] = v
-    return out
-
-
 def build_config(args: argparse.Namespace) -> dict:
     """The validated configuration for ``args`` (raises ValueError before anything is compiled)."""
-    overrides = _parse_set(args.set)
+    overrides = parse_set(args.set)
     for opt, key in (("seeds", "num_seeds"), ("seed", "seed"), ("steps", "total_steps"), ("num_envs", "num_envs"),
                      ("chunk_steps", "chunk_steps"), ("checkpoint_every", "checkpoint_every"),
                      ("eval_episodes", "eval_episodes"), ("agents", "agents"), ("hierarchy", "hierarchy")):
@@ -163,7 +150,7 @@ def build_config(args: argparse.Namespace) -> dict:
 
 def main(argv=None) -> int:
     args = parse_args(argv)
-    from train.run import use_all_cpu_cores
+    from train.xla_flags import use_all_cpu_cores
 
     use_all_cpu_cores()  # seeds are split over the cores (a no-op once JAX has started, e.g. inside tests)
     try:
@@ -174,7 +161,7 @@ def main(argv=None) -> int:
         if cluster.requested and not args.print_config:
             distributed.initialize(cluster)
         if args.eval_only:
-            from train.run import evaluate_checkpoint
+            from train.evaluation import evaluate_checkpoint
 
             ev = evaluate_checkpoint(args.eval_only, episodes=args.eval_episodes)
             print(json.dumps({"env_steps": ev["env_steps"], **ev["summary"]}, indent=2))
@@ -208,7 +195,9 @@ def main(argv=None) -> int:
         print(f"error: {e}", file=sys.stderr)
         return 2
     except (RuntimeError, OSError) as e:
-        from jaxsmarl.checkpoints import CheckpointWriteError  # here: importing orbax early would start JAX
+        from jaxsmarl.checkpoints import (
+            CheckpointWriteError,  # here: importing orbax early would start JAX
+        )
 
         if not isinstance(e, (CheckpointWriteError, OSError)):
             raise

@@ -2,8 +2,9 @@
 
 A configuration is a flat dict: the :data:`COMMON` keys every run has (scenario, budget, seeds, chunking,
 evaluation) plus the keys of its algorithm. Each algorithm registers an :class:`AlgoSpec` (in a module of
-:mod:`train.algos`, discovered automatically) with its defaults, one help line per key, validation rules and the
-function that builds its compiled trainer.
+:mod:`train.algos`, discovered automatically) with its defaults, one help line per key and validation rules (read
+from the algorithm's config dataclass, :mod:`jaxsmarl.options`), the function that builds its agent and the loop
+that trains it (joined by :func:`train.build.make_train`).
 
 ``load_config(scenario, algo, overrides)`` starts from the common and the algorithm's defaults, applies
 ``train/configs/<scenario>_<algo>.json`` (the authors' effective hyper-parameters), then the overrides (command
@@ -16,20 +17,17 @@ from __future__ import annotations
 import dataclasses
 import difflib
 import json
-import math
 import os
 from typing import Any, Callable
 
+from jaxsmarl.options import TERMINAL_MASKS, Bool, Choice, Int, Num, PerAgent, Sizes
+
 __all__ = ["COMMON", "COMMON_HELP", "AlgoSpec", "ALGOS", "SCENARIOS", "SCENARIO_AGENTS", "CONFIG_DIR", "DEFAULTS", "HELP",
-           "register", "spec", "defaults_for", "help_for", "load_config", "read_run_config", "validate", "config_path",
+           "register", "spec", "parse_set", "RESUME_FREE", "defaults_for", "help_for", "load_config", "read_run_config", "validate", "config_path",
            "preset_values", "LEGACY", "MATMUL_PRECISIONS", "TERMINAL_MASKS",
            "Int", "Num", "Choice", "Bool", "PerAgent", "Sizes"]
 
 CONFIG_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), "configs")
-
-# The off-policy learners' `terminal_mask` choices: jaxsmarl.bootstrap.TERMINAL_MASKS, restated here so that
-# this module needs no JAX (tests keep the two equal).
-TERMINAL_MASKS = ("sample", "batch_mean")
 
 # Known scenarios and their action type (checked again against the env when it is built).
 SCENARIOS = {"merge": "discrete", "roundabout": "discrete", "intersection": "continuous", "racetrack": "continuous",
@@ -53,6 +51,10 @@ COMMON: dict[str, Any] = {
     "eval_max_steps": 200,
     "matmul_precision": "highest",
 }
+
+# Keys whose change does not alter a run's training trajectory: a resumed run, and a study keeping a finished run,
+# accept new values for them (train.run also accepts a new total_steps, checked against the saved run).
+RESUME_FREE = ("checkpoint_every", "eval_episodes", "eval_max_steps")
 
 # The value a key had before it existed, for run folders saved without it (read_run_config): the behaviour those
 # runs were trained with. Keys not listed here kept their behaviour under today's default.
@@ -79,89 +81,8 @@ COMMON_HELP: dict[str, str] = {
 }
 
 
-# ----------------------------------------------------------------------------------------------------------
-# Validation rules: each returns the normalised value or raises ValueError naming the key and what is allowed.
-
-@dataclasses.dataclass(frozen=True)
-class Int:
-    lo: int = 0
-
-    def __call__(self, key: str, v: Any) -> int:
-        if isinstance(v, float) and v.is_integer():
-            v = int(v)
-        if not isinstance(v, int) or isinstance(v, bool) or v < self.lo:
-            raise ValueError(f"'{key}' must be an integer >= {self.lo}, got {v!r}")
-        return v
-
-
-@dataclasses.dataclass(frozen=True)
-class Num:
-    lo: float = -math.inf
-    hi: float = math.inf
-    lo_open: bool = False
-    hi_open: bool = False
-    hint: str = ""  # appended to the error message
-
-    def check(self, key: str, v: Any) -> float:
-        hint = f" ({self.hint})" if self.hint else ""
-        if not isinstance(v, (int, float)) or isinstance(v, bool) or not math.isfinite(v):
-            raise ValueError(f"'{key}' must be a finite number, got {v!r}{hint}")
-        if (v <= self.lo if self.lo_open else v < self.lo) or (v >= self.hi if self.hi_open else v > self.hi):
-            raise ValueError(f"'{key}' must lie in {'(' if self.lo_open else '['}{self.lo}, {self.hi}"
-                             f"{')' if self.hi_open else ']'}, got {v}{hint}")
-        return float(v)
-
-    __call__ = check
-
-
-@dataclasses.dataclass(frozen=True)
-class Choice:
-    values: tuple
-
-    def __call__(self, key: str, v: Any) -> Any:
-        if v not in self.values:
-            raise ValueError(f"'{key}' must be one of {', '.join(map(str, self.values))}, got {v!r}")
-        return v
-
-
-@dataclasses.dataclass(frozen=True)
-class Bool:
-    def __call__(self, key: str, v: Any) -> bool:
-        if not isinstance(v, bool):
-            raise ValueError(f"'{key}' must be true or false, got {v!r}")
-        return v
-
-
-@dataclasses.dataclass(frozen=True)
-class PerAgent:
-    """A number per agent (``[leader, follower]`` for two); a single number, or a list of equal numbers such as the
-    two-agent defaults, sets every agent's. ``n``: the number of agents (the config's ``agents``)."""
-
-    num: Num = Num()
-
-    def __call__(self, key: str, v: Any, n: int = 2) -> list[float]:
-        if isinstance(v, (int, float)) and not isinstance(v, bool):
-            v = [v] * n
-        numbers = isinstance(v, (list, tuple)) and len(v) > 0 and all(
-            isinstance(x, (int, float)) and not isinstance(x, bool) for x in v)
-        if numbers and len(v) != n and all(x == v[0] for x in v):
-            v = [v[0]] * n
-        if not numbers or len(v) != n:
-            what = "two numbers [leader, follower]" if n == 2 else f"{n} numbers, one per agent"
-            raise ValueError(f"'{key}' must be a number or a list of {what}, got {v!r}")
-        return [self.num.check(key, x) for x in v]
-
-
-@dataclasses.dataclass(frozen=True)
-class Sizes:
-    """A non-empty list of positive integers (hidden layer widths)."""
-
-    def __call__(self, key: str, v: Any) -> list[int]:
-        if not isinstance(v, (list, tuple)) or len(v) == 0 or not all(
-                isinstance(h, int) and not isinstance(h, bool) and h > 0 for h in v):
-            raise ValueError(f"'{key}' must be a non-empty list of positive integers, got {v!r}")
-        return list(v)
-
+# Validation rules (jaxsmarl.options): each returns the normalised value or raises ValueError naming the key and
+# what is allowed.
 
 COMMON_RULES: dict[str, Callable] = {
     "total_steps": Int(1), "num_seeds": Int(1), "seed": Int(0), "num_envs": Int(1), "chunk_steps": Int(1),
@@ -173,13 +94,19 @@ COMMON_RULES: dict[str, Callable] = {
 # ----------------------------------------------------------------------------------------------------------
 # The registry.
 
+LOOPS = ("offpolicy", "onpolicy")  # the training loops an algorithm can run in (train.build)
+
+
 @dataclasses.dataclass(frozen=True)
 class AlgoSpec:
     """One trainable algorithm.
 
     ``defaults``/``help``: its own keys (besides :data:`COMMON`); ``rules``: key -> rule (keys without a rule are
     taken as they are); ``check(cfg)``: cross-key checks on the normalised config, raising ValueError;
-    ``make_train(config, env) -> train.loop.Trainer``: builds the compiled trainer (imports JAX lazily);
+    ``make_agent(config, env) -> agent``: the learner for the run (imports JAX lazily); ``loop``: the training loop
+    that drives it, ``"offpolicy"`` (:mod:`train.offpolicy`) or ``"onpolicy"`` (:mod:`train.onpolicy`), joined by
+    :func:`train.build.make_train`; ``seeds_in_sequence_on_cpu``: on the CPU each device runs its seeds one after
+    another, cheaper there for these learners' updates (docs/performance.md);
     ``presets``: name -> values that ``--preset NAME`` sets (after the JSON file, before ``--set``).
     """
 
@@ -189,13 +116,17 @@ class AlgoSpec:
     defaults: dict
     help: dict
     rules: dict
-    make_train: Callable
+    make_agent: Callable
+    loop: str
     check: Callable | None = None
     presets: dict = dataclasses.field(default_factory=dict)
+    seeds_in_sequence_on_cpu: bool = False
 
     def __post_init__(self):
         if self.action not in ("discrete", "continuous"):
             raise ValueError(f"AlgoSpec {self.name}: action must be discrete or continuous")
+        if self.loop not in LOOPS:
+            raise ValueError(f"AlgoSpec {self.name}: loop must be one of {', '.join(LOOPS)}, got {self.loop!r}")
         missing = [k for k in self.defaults if k not in self.help]
         if missing:
             raise ValueError(f"AlgoSpec {self.name}: keys without a help line: {missing}")
@@ -298,6 +229,20 @@ def read_run_config(run_dir: str) -> dict:
     if saved.get("algo") not in ALGOS:
         raise ValueError(f"{path}: 'algo' is {saved.get('algo')!r}; a run's algorithm is one of {', '.join(ALGOS)}")
     return {**defaults_for(saved["algo"]), **LEGACY, **saved}
+
+
+def parse_set(items: list[str]) -> dict:
+    """``--set KEY=VALUE`` items as overrides: each value read as JSON, a plain word as a string."""
+    out = {}
+    for item in items:
+        if "=" not in item:
+            raise ValueError(f"--set expects KEY=VALUE, got {item!r}")
+        k, v = item.split("=", 1)
+        try:
+            out[k.strip()] = json.loads(v)
+        except json.JSONDecodeError:
+            out[k.strip()] = v
+    return out
 
 
 def preset_values(algo: str, preset: str) -> dict:

@@ -4,7 +4,7 @@
 ``--coordinator-address HOST:PORT --num-processes N --process-id I``, the environment variables
 ``JAX_COORDINATOR_ADDRESS``, ``JAX_NUM_PROCESSES`` and ``JAX_PROCESS_ID``, or ``--distributed`` alone, which
 lets JAX detect the cluster (SLURM, Open MPI, Cloud TPU, Kubernetes). The seed axis is then sharded over every
-device of every process (one global mesh, :func:`train.run.seed_sharding`); the seeds stay independent, so the
+device of every process (one global mesh, :func:`train.parallel.seed_sharding`); the seeds stay independent, so the
 only traffic between processes is gathering the per-chunk metrics and checkpoint digests to the host.
 
 Failure of a peer: JAX's coordination service (in process 0) declares a process dead when it has sent no

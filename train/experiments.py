@@ -31,15 +31,11 @@ import os
 import sys
 import time
 
+from train.config import RESUME_FREE, defaults_for, load_config, parse_set, read_run_config
+from train.study import STUDY
+
 __all__ = ["STUDY", "QUICK", "DEFAULT_SEEDS", "plan", "parse_only", "run_study", "main"]
 
-# Scenario -> algorithms, in the paper's order (ours first, then the baselines).
-STUDY: dict[str, tuple[str, ...]] = {
-    "merge": ("csq", "sq"),
-    "roundabout": ("csq", "sq"),
-    "intersection": ("cs-maddpg", "s-maddpg", "mappo-l", "macpo"),
-    "racetrack": ("cs-maddpg", "s-maddpg", "mappo-l", "macpo"),
-}
 DEFAULT_SEEDS = 10
 
 # --quick budgets per (scenario, algo): overrides of the run configuration. Target: the whole study (12 runs, each
@@ -63,9 +59,6 @@ QUICK: dict[tuple[str, str], dict] = {
     ("racetrack", "macpo"): {"total_steps": 32768, "num_seeds": 4},
 }
 QUICK_EVAL_EPISODES = 10
-
-# Keys whose change does not alter the training trajectory (train.run accepts them on resume).
-_RESUME_FREE = ("checkpoint_every", "eval_episodes", "eval_max_steps")
 
 
 def parse_only(items) -> list[tuple[str, str]]:
@@ -115,8 +108,6 @@ def plan(only=None, quick: bool = False, seeds: int | None = None, steps: int | 
 
 def _resolve(item: dict) -> tuple[dict | None, str]:
     """The validated config of a planned run, or ``(None, reason)`` when its algorithm is not registered."""
-    from train.config import defaults_for, load_config
-
     scenario, algo = item["scenario"], item["algo"]
     try:
         valid = defaults_for(algo)
@@ -145,8 +136,6 @@ def _read_json(path: str):
 def _saved_config(run_dir: str) -> dict | None:
     """The run folder's configuration with later-added keys at their defaults (``train.config.read_run_config``);
     None when there is no readable one."""
-    from train.config import read_run_config
-
     try:
         return read_run_config(run_dir)
     except (OSError, ValueError):
@@ -156,7 +145,7 @@ def _saved_config(run_dir: str) -> dict | None:
 def _same(saved: dict | None, config: dict) -> bool:
     if saved is None:
         return False
-    return all(saved.get(k) == v for k, v in config.items() if k not in _RESUME_FREE)
+    return all(saved.get(k) == v for k, v in config.items() if k not in RESUME_FREE)
 
 
 def _has_checkpoint(run_dir: str) -> bool:
@@ -191,7 +180,7 @@ def run_one(item: dict, study_dir: str, overwrite: bool = False, gifs: bool = Tr
             status["status"] = "kept"
         else:
             diff = {k: (saved.get(k), v) for k, v in config.items()
-                    if k not in _RESUME_FREE and saved.get(k) != v}
+                    if k not in RESUME_FREE and saved.get(k) != v}
             msg = (f"finished earlier with a different configuration {diff}; kept as it is (pass --overwrite to "
                    "retrain it, or choose another --out)")
             _say(f"{name}: {msg}", verbose)
@@ -307,12 +296,6 @@ def enable_compile_cache(path: str) -> None:
         print(f"note: no persistent compilation cache ({type(e).__name__}: {e})", file=sys.stderr)
 
 
-def _parse_set(items) -> dict:
-    from train.__main__ import _parse_set as parse
-
-    return parse(items)
-
-
 def parse_args(argv=None):
     p = argparse.ArgumentParser(prog="python -m train.experiments", description=__doc__.split("\n\n")[0],
                                 formatter_class=argparse.RawDescriptionHelpFormatter, epilog=(
@@ -339,7 +322,7 @@ def main(argv=None) -> int:
     args = parse_args(argv)
     out = args.out or os.path.join("runs", "experiments_quick" if args.quick else "experiments")
     try:
-        overrides = _parse_set(args.set)
+        overrides = parse_set(args.set)
         items = plan(args.only, args.quick, args.seeds, args.steps, overrides)
         known = set()
         for item in items:  # validate every registered run's configuration before anything is trained
@@ -352,9 +335,9 @@ def main(argv=None) -> int:
     except ValueError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
-    import train.run
+    import train.xla_flags
 
-    train.run.use_all_cpu_cores()
+    train.xla_flags.use_all_cpu_cores()
     enable_compile_cache(os.path.join(out, "jax_cache"))
     run_study(out, args.only, args.quick, args.seeds, args.steps, overrides, overwrite=args.overwrite,
               gifs=not args.no_gifs, report_only=args.report_only, verbose=not args.quiet)

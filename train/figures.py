@@ -29,6 +29,7 @@ from jaxsmarl import metrics, stats
 from jaxsmarl.learner_log import FIELDS as LEARNER_FIELDS
 from jaxsmarl.learner_log import LearnerLog
 from train.reference_results import AUTHORS, authors_values
+from train.study import STUDY
 
 __all__ = ["load_run", "binned_curve", "scenario_panels", "plot_scenario", "plot_learner", "make_figures",
            "ALGO_STYLE"]
@@ -126,7 +127,7 @@ def episode_limit(scenario: str) -> int | None:
     """The scenario's episode time limit in decisions (envs_jax default parameters), None if unavailable."""
     try:
         import envs_jax
-        from train.loop import episode_step_limit
+        from envs_jax.time_limit import episode_step_limit
 
         env = envs_jax.make(scenario)
         return episode_step_limit(env, env.default_params)
@@ -292,8 +293,6 @@ def plot_learner(runs: dict[str, dict], out_base: str, title: str = "") -> list[
 
 def study_runs(study_dir: str) -> dict[str, dict[str, dict]]:
     """``{scenario: {algo: run}}`` of every run folder ``study_dir/runs/<scenario>_<algo>`` with episodes."""
-    from train.experiments import STUDY
-
     out: dict[str, dict[str, dict]] = {}
     runs_dir = os.path.join(study_dir, "runs")
     for scenario, algos in STUDY.items():

@@ -4,7 +4,7 @@
 One *cycle* = ``rollout_length`` loop iterations (each steps every env once) + one ``agent.update``; a chunk is
 a whole number of cycles (``chunk_steps`` and ``total_steps`` are multiples of ``num_envs * rollout_length``,
 checked by the config), so a chunk's ``metrics["episode"]`` (``[n_cycles, T, E]``) is reshaped to
-``[chunk_iters, E]`` as the :mod:`train.loop` contract asks. ``metrics["update"]`` holds the agent's update
+``[chunk_iters, E]`` as the :mod:`train.trainer` contract asks. ``metrics["update"]`` holds the agent's update
 diagnostics per cycle.
 
 Bookkeeping per env: ``alive[E, N]``: agent i has not terminated yet in the current episode (per-agent
@@ -23,7 +23,7 @@ import jax
 import jax.numpy as jnp
 
 from jaxsmarl import metrics
-from train.loop import Trainer, make_evaluate, make_train_fn
+from train.trainer import Trainer, assemble_trainer
 
 __all__ = ["Transition", "OnPolicyState", "make_onpolicy_train"]
 
@@ -61,9 +61,6 @@ def make_onpolicy_train(config: dict, env, agent) -> Trainer:
     cycle = E * T
     if config["total_steps"] % cycle or config["chunk_steps"] % cycle:
         raise ValueError(f"total_steps and chunk_steps must be multiples of num_envs * rollout_length ({cycle})")
-    total_iters = config["total_steps"] // E
-    chunk_iters = min(config["chunk_steps"] // E, total_iters)
-    n_full, tail = divmod(total_iters, chunk_iters)
     n_agents = env.num_agents
 
     def init(key) -> OnPolicyState:
@@ -101,14 +98,4 @@ def make_onpolicy_train(config: dict, env, agent) -> Trainer:
 
         return run
 
-    run_chunk = make_chunk(chunk_iters)
-    run_tail = make_chunk(tail) if tail else None
-
-    train = make_train_fn(init, run_chunk, run_tail, n_full, chunk_iters)
-
-    evaluate = make_evaluate(wrapped, params, agent.greedy_act, config["eval_episodes"], config["eval_max_steps"])
-    return Trainer(config=config, env=env, agent=agent, init=init, run_chunk=run_chunk, run_tail=run_tail,
-                   train=train, evaluate=evaluate, total_iters=total_iters, chunk_iters=chunk_iters,
-                   n_chunks=n_full + (1 if tail else 0),
-                   # seed by seed is cheaper on XLA:CPU; an accelerator wants the seeds batched
-                   seeds_in_sequence=jax.default_backend() == "cpu")
+    return assemble_trainer(config, env, wrapped, params, agent, init, make_chunk)

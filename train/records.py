@@ -21,6 +21,8 @@ import os
 
 import numpy as np
 
+from train.study import STUDY
+
 __all__ = ["RECORDS", "load_record", "load_records", "missing"]
 
 # (scenario, algo) -> record folder under benchmarks/results/training/. Each is the run at the budget the shipped
@@ -116,8 +118,6 @@ def load_records(root: str, table: dict[tuple[str, str], str] | None = None) -> 
 
 def missing(root: str, table: dict[tuple[str, str], str] | None = None) -> dict[str, str]:
     """``{"<scenario>_<algo>": reason}`` for every scenario x algorithm of the study without a record."""
-    from train.experiments import STUDY
-
     table = RECORDS if table is None else table
     out = {}
     for scenario, algos in STUDY.items():

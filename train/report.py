@@ -21,8 +21,10 @@ import sys
 import numpy as np
 
 from jaxsmarl import metrics, stats
+from train import figures, records
 from train.figures import label, short_runs, study_runs
 from train.reference_results import AUTHORS, CODE_DIFFERENCES, PAPER_CLAIMS, authors_summary
+from train.study import STUDY
 
 __all__ = ["final_per_seed", "eval_per_seed", "interval", "compare", "write_report", "render_report"]
 
@@ -117,8 +119,6 @@ def _timing(run: dict, study: dict, key: str) -> str:
 
 
 def _scenario_section(scenario: str, runs: dict[str, dict], study: dict, study_dir: str) -> list[str]:
-    from train.experiments import STUDY
-
     lines = [f"## {scenario}", "", f"Paper: {PAPER_CLAIMS.get(scenario, '')}", ""]
     if scenario == "racetrack":
         event_cols = [("crash", "crash rate"), ("offroad", "off-road rate"), ("leader_distance", "distance L (m)"),
@@ -354,8 +354,6 @@ def write_records_report(records_dir: str, out: str, table: dict | None = None, 
     (:mod:`train.records`). GIFs are not rendered (records hold no checkpoints): those listed in
     ``out/figures/gifs.json`` (``{"gifs": {name: how it was trained}, "no_gif": {name: why not}}``) are embedded.
     Returns ``{"report": path, "figures": [paths]}``."""
-    from train import figures, records
-
     all_runs = records.load_records(records_dir, table)
     fig_dir = os.path.join(out, "figures")
     os.makedirs(fig_dir, exist_ok=True)

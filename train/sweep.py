@@ -80,7 +80,7 @@ def sweep_values(configs: list[dict], keys: list[str]):
 
 def trainer_for(config: dict, env, values: dict):
     """The trainer of ``config`` with ``values`` (traced arrays of one configuration) in place of the swept keys."""
-    from train.loop import make_train
+    from train.build import make_train
 
     cfg = dict(config)
     for k, v in values.items():
@@ -94,7 +94,7 @@ def check_traceable(config: dict, env, keys: list[str]) -> None:
     import jax
     import jax.numpy as jnp
 
-    from train.loop import make_train
+    from train.build import make_train
 
     trainer = make_train(config, env)
     values = {k: jax.ShapeDtypeStruct(jnp.shape(jnp.asarray(config[k], jnp.float32)), jnp.float32) for k in keys}
@@ -118,13 +118,13 @@ def check_traceable(config: dict, env, keys: list[str]) -> None:
 def sweep_parallel(fn: Callable, num_seeds: int, in_axes=0, donate_argnums=(), sequential: bool = False):
     """``fn(values, *args)`` (per seed; ``values``: one configuration's swept values) over ``[C, S]``-leading
     arguments: the configurations one after another (``lax.map``), inside each the seeds as in
-    :func:`train.run.seed_parallel` (batched or in sequence, the seed axis split over the devices).
+    :func:`train.parallel.seed_parallel` (batched or in sequence, the seed axis split over the devices).
     ``in_axes`` is for ``args``: 0 (a ``[C, S]`` leading pair) or None (shared). Returns a jitted
     ``f(values [C, ...], *args)``."""
     import jax
     from jax.sharding import PartitionSpec
 
-    from train.run import seed_loop, seed_sharding
+    from train.parallel import seed_loop, seed_sharding
 
     axes = tuple(in_axes) if isinstance(in_axes, (tuple, list)) else (in_axes,)
 
@@ -158,7 +158,7 @@ def placement(num_seeds: int) -> Any:
     """The sharding of ``[C, S, ...]`` arrays: the seed axis split as in a one-configuration run."""
     from jax.sharding import NamedSharding, PartitionSpec
 
-    from train.run import seed_sharding
+    from train.parallel import seed_sharding
 
     s = seed_sharding(num_seeds)
     return None if s is None else NamedSharding(s.mesh, PartitionSpec(None, "seeds"))
@@ -186,9 +186,11 @@ def run_sweep(config: dict, sweep: dict[str, list], out: str, *, overwrite: bool
     from jaxsmarl.checkpoints import Checkpointer
     from jaxsmarl.learner_log import LearnerLog, chunk_rows
     from train import distributed
+    from train.build import make_train
+    from train.evaluation import eval_rows, write_eval_csv
     from train.lock import RunLock
-    from train.loop import make_env, make_train, seed_keys
-    from train.run import _check_out_dir, _clear_run_dir, _write_eval_csv, eval_rows
+    from train.run_folder import check_out_dir, clear_run_dir
+    from train.trainer import make_env, seed_keys
 
     configs = sweep_configs(config, sweep)
     keys = list(sweep)
@@ -199,13 +201,13 @@ def run_sweep(config: dict, sweep: dict[str, list], out: str, *, overwrite: bool
     verbose = verbose and main
     lock = RunLock(out).acquire() if main and os.path.isdir(out) else None
     try:
-        _check_out_dir(out, False, overwrite)
+        check_out_dir(out, False, overwrite)
         distributed.sync("sweep folder checked")
         if main:
             os.makedirs(out, exist_ok=True)
             lock = lock or RunLock(out).acquire()
             if overwrite:
-                _clear_run_dir(out)
+                clear_run_dir(out)
         distributed.sync("sweep folder ready")
 
         env = make_env(config["scenario"]) if env is None else env
@@ -266,7 +268,7 @@ def run_sweep(config: dict, sweep: dict[str, list], out: str, *, overwrite: bool
 
         ev = None
         if config["eval_episodes"] > 0:
-            ek = jax.random.split(jax.random.PRNGKey(config["seed"] + 10_000), S)  # as train.run.evaluate_state
+            ek = jax.random.split(jax.random.PRNGKey(config["seed"] + 10_000), S)  # as train.evaluation.evaluate_state
             ev = distributed.to_host(eval_fn(values, state.agent, put(jnp.broadcast_to(ek, (C,) + ek.shape))))
         timing = {"setup_s": time.perf_counter() - t0 - train_s, "compile_s": compile_s, "train_s": train_s,
                   "env_steps_run": steps_run, "configurations": C,
@@ -289,7 +291,7 @@ def run_sweep(config: dict, sweep: dict[str, list], out: str, *, overwrite: bool
                 learners[i].write_csv(os.path.join(d, "learner.csv"))
                 metrics.write_json(os.path.join(d, "summary.json"), s)
                 if rows:
-                    _write_eval_csv(os.path.join(d, "eval.csv"), rows)
+                    write_eval_csv(os.path.join(d, "eval.csv"), rows)
         if main:
             metrics.write_json(os.path.join(out, "sweep.json"), {
                 "base": config, "sweep": sweep, "timing": timing,

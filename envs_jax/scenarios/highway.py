@@ -20,7 +20,6 @@ truncates. ``highway-fast-v0``: 5 Hz simulation, 3 lanes, 20 vehicles, 30 s,
 
 from __future__ import annotations
 
-import dataclasses
 from typing import Any
 
 import jax
@@ -30,15 +29,15 @@ from flax import struct
 
 from envs_jax import kinematic_obs
 from envs_jax import lanes as L
-from envs_jax.idm import IDMParams
 from envs_jax.road import RoadNetwork
+from envs_jax.scenarios.config_values import (config_given, cost_value, flag_value, idm_params, int_value,
+                                              meta_action_config, number_value, observation_config, speed_range)
 from envs_jax.traffic_env import Task, TrafficEnv, TrafficParams
 
 C, S, N = L.LINE_CONTINUOUS_LINE, L.LINE_STRIPED, L.LINE_NONE
 LANE_LENGTH = 10000.0
 SPEED_LIMIT = 30.0
 EGO_SPEED = 25.0
-IDM_CLASS = "highway_env.vehicle.behavior.IDMVehicle"
 
 
 @struct.dataclass
@@ -67,9 +66,6 @@ DEFAULTS = {
 DEFAULTS["highway-fast-v0"] = dict(DEFAULTS["highway-v0"], simulation_frequency=5, lanes_count=3,
                                    vehicles_count=20, duration=30, ego_spacing=1.5)
 STATIC_KEYS = ("simulation_frequency", "policy_frequency", "lanes_count", "vehicles_count", "controlled_vehicles")
-# highway-env config keys that only affect rendering (accepted and ignored)
-RENDER_KEYS = frozenset({"screen_width", "screen_height", "centering_position", "scaling", "show_trajectories",
-                         "render_agent", "offscreen_rendering", "real_time_rendering", "render_mode"})
 OWN_KEYS = ("num_slots", "collision_cost", "idm", "on_road_reward")
 
 
@@ -198,160 +194,6 @@ class Highway(Task):
 # ----------------------------------------------------------------------------------------------
 # Configuration: highway-env's config dict and keyword overrides -> a TrafficEnv
 
-def _int(name, key, value, lo, hi=None):
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < lo or (hi is not None and value > hi):
-        rng = f">= {lo}" if hi is None else f"in {lo}..{hi}"
-        raise ValueError(f"{name}: {key} must be an integer {rng}, got {value!r}")
-    return int(value)
-
-
-def _number(name, key, value, positive=False):
-    if (isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating))
-            or not np.isfinite(float(value))):
-        raise ValueError(f"{name}: {key} must be a finite number, got {value!r}")
-    if positive and not float(value) > 0:
-        raise ValueError(f"{name}: {key} must be > 0, got {value!r}")
-    return float(value)
-
-
-def _unwrap(name, section, value, multi, inner):
-    if not isinstance(value, dict):
-        raise ValueError(f"{name}: {section} must be a dict, got {value!r}")
-    if value.get("type") == multi:
-        extra = sorted(k for k in value if k not in ("type", inner))
-        if extra:
-            raise ValueError(f"{name}: {section} keys {extra} are not understood; allowed: ['type', '{inner}']")
-        value = value.get(inner, {})
-        if not isinstance(value, dict):
-            raise ValueError(f"{name}: {section}.{inner} must be a dict, got {value!r}")
-    return dict(value)
-
-
-def _action(name, value):
-    action = _unwrap(name, "action", value, "MultiAgentAction", "action_config")
-    kind = action.pop("type", None)
-    if kind != "DiscreteMetaAction":
-        raise ValueError(f"{name}: action type must be 'DiscreteMetaAction' (or MultiAgentAction of it), got {kind!r}")
-    out = {}
-    for key in ("longitudinal", "lateral"):
-        if action.pop(key, True) is not True:
-            raise ValueError(f"{name}: DiscreteMetaAction({key}=False) is not supported; the five meta-actions "
-                             f"{('LANE_LEFT', 'IDLE', 'LANE_RIGHT', 'FASTER', 'SLOWER')} are")
-    if "target_speeds" in action:
-        ts = np.asarray(action.pop("target_speeds"), dtype=np.float64)
-        if ts.ndim != 1 or ts.size < 2 or not np.all(np.diff(ts) > 0) or not np.all(np.isfinite(ts)):
-            raise ValueError(f"{name}: target_speeds must be an increasing list of at least 2 finite speeds, "
-                             f"got {ts.tolist()}")
-        out["target_speeds"] = ts
-    if action:
-        raise ValueError(f"{name}: DiscreteMetaAction keys {sorted(action)} are not understood; allowed: "
-                         f"['type', 'longitudinal', 'lateral', 'target_speeds']")
-    return out
-
-
-def _observation(name, value):
-    obs = _unwrap(name, "observation", value, "MultiAgentObservation", "observation_config")
-    return kinematic_obs.KinematicsConfig.from_config(obs, where=f"{name}: observation")
-
-
-def _cost(name, key, value):
-    """A cost (or cost weight): a finite number >= 0."""
-    value = _number(name, key, value)
-    if value < 0:
-        raise ValueError(f"{name}: {key} is a cost and must be >= 0, got {value!r}")
-    return value
-
-
-def _speed_range(name, rsr):
-    """``reward_speed_range``: ``[low, high]`` of finite speeds with ``low != high`` (the reward divides by
-    ``high - low``)."""
-    try:
-        arr = np.asarray(rsr, np.float64)
-    except (TypeError, ValueError):
-        arr = None
-    if arr is None or arr.shape != (2,) or not np.all(np.isfinite(arr)) or arr[0] == arr[1]:
-        raise ValueError(f"{name}: reward_speed_range must be [low, high] of finite speeds with low != high, "
-                         f"got {rsr!r}")
-    return float(arr[0]), float(arr[1])
-
-
-# Physical ranges of IDMParams fields: (low, high, low allowed, what); every field must also be finite
-_IDM_RANGES = {
-    "acc_max": (0.0, None, False, "an acceleration in m/s^2"),
-    "comfort_acc_max": (0.0, None, False, "an acceleration in m/s^2"),
-    "comfort_acc_min": (None, 0.0, False, "a deceleration in m/s^2 (negative)"),
-    "distance_wanted": (0.0, None, True, "a jam distance in metres"),
-    "time_wanted": (0.0, None, True, "a time gap in seconds"),
-    "delta": (0.0, None, False, "an exponent"),
-    "politeness": (0.0, 1.0, True, "a weight in [0, 1]"),
-    "lane_change_min_acc_gain": (0.0, None, True, "an acceleration in m/s^2"),
-    "lane_change_max_braking_imposed": (0.0, None, True, "an acceleration in m/s^2"),
-    "lane_change_delay": (0.0, None, True, "a time in seconds"),
-}
-
-
-def check_idm(name, idm: IDMParams) -> IDMParams:
-    """``idm`` if each field is in its physical range (``_IDM_RANGES``; ``delta_range`` is (low, high) with
-    0 < low <= high), else ``ValueError`` naming the field and the allowed range."""
-    for key, (low, high, low_ok, what) in _IDM_RANGES.items():
-        value = getattr(idm, key)
-        try:
-            value = float(value)
-        except (TypeError, ValueError):
-            raise ValueError(f"{name}: idm {key} must be a number, got {value!r}") from None
-        ok = np.isfinite(value) and (low is None or (value >= low if low_ok else value > low)) \
-            and (high is None or (value <= high if low_ok else value < high))
-        if not ok:
-            bound = " and ".join(b for b in (None if low is None else f"{'>=' if low_ok else '>'} {low:g}",
-                                             None if high is None else f"{'<=' if low_ok else '<'} {high:g}") if b)
-            raise ValueError(f"{name}: idm {key} is {what} and must be {bound}, got {value!r}")
-    dr = np.asarray(idm.delta_range, np.float64) if np.ndim(idm.delta_range) == 1 else None
-    if dr is None or dr.shape != (2,) or not np.all(np.isfinite(dr)) or not 0 < dr[0] <= dr[1]:
-        raise ValueError(f"{name}: idm delta_range must be (low, high) of exponents with 0 < low <= high, "
-                         f"got {idm.delta_range!r}")
-    return idm
-
-
-def _idm(name, idm):
-    """The ``idm`` key: None (highway-env's constants), an IDMParams or a dict of its fields."""
-    if idm is None:
-        return IDMParams()
-    if isinstance(idm, dict):
-        fields = {f.name for f in dataclasses.fields(IDMParams)}
-        bad = sorted(set(idm) - fields)
-        if bad:
-            raise ValueError(f"{name}: unknown idm field(s) {bad}; allowed: {sorted(fields)}")
-        idm = IDMParams(**idm)
-    if not isinstance(idm, IDMParams):
-        raise ValueError(f"{name}: idm must be an IDMParams or a dict of its fields, got {type(idm).__name__}")
-    return check_idm(name, idm)
-
-
-def config_given(name: str, cfg: dict, own_keys, env_config, overrides, connected_lanes: str | None = None) -> dict:
-    """The keys a traffic task's caller set (``env_config``, then keywords), after the checks every task shares.
-
-    Unknown keys, another ``other_vehicles_type`` than highway-env's IDM drivers and ``manual_control=True`` raise
-    ``ValueError``; rendering keys are dropped. ``neighbour_vehicles_connected_lanes=True`` is refused with
-    ``connected_lanes`` as the reason, or ignored where that is None (roads without connected lanes).
-    """
-    given = dict(env_config or {})
-    given.update(overrides)
-    allowed = sorted(set(cfg) | set(own_keys) | RENDER_KEYS
-                     | {"other_vehicles_type", "manual_control", "neighbour_vehicles_connected_lanes"})
-    unknown = sorted(k for k in given if k not in allowed)
-    if unknown:
-        raise ValueError(f"{name}: unknown config key(s) {unknown}; allowed: {allowed}")
-    for key in RENDER_KEYS:
-        given.pop(key, None)
-    if given.pop("other_vehicles_type", IDM_CLASS) != IDM_CLASS:
-        raise ValueError(f"{name}: other_vehicles_type must be {IDM_CLASS!r} (the IDM/MOBIL drivers)")
-    if given.pop("manual_control", False):
-        raise ValueError(f"{name}: manual_control=True is not supported (there is no keyboard in JAX)")
-    if given.pop("neighbour_vehicles_connected_lanes", False) and connected_lanes is not None:
-        raise ValueError(f"{name}: neighbour_vehicles_connected_lanes=True is not supported: {connected_lanes}")
-    return given
-
-
 def make_highway(name: str, env_config: dict | None = None, **overrides) -> TrafficEnv:
     """``highway-v0`` / ``highway-fast-v0`` from highway-env's config keys (``env_config`` and/or keywords).
 
@@ -366,39 +208,38 @@ def make_highway(name: str, env_config: dict | None = None, **overrides) -> Traf
     cfg["action"] = {"type": "DiscreteMetaAction"}
     cfg.update(config_given(name, cfg, OWN_KEYS, env_config, overrides))  # one road: no connected lanes
 
-    sim = _int(name, "simulation_frequency", cfg["simulation_frequency"], 1)
-    pol = _int(name, "policy_frequency", cfg["policy_frequency"], 1, sim)
-    lanes_count = _int(name, "lanes_count", cfg["lanes_count"], 1)
-    vehicles_count = _int(name, "vehicles_count", cfg["vehicles_count"], 0)
-    k = _int(name, "controlled_vehicles", cfg["controlled_vehicles"], 1)
+    sim = int_value(name, "simulation_frequency", cfg["simulation_frequency"], 1)
+    pol = int_value(name, "policy_frequency", cfg["policy_frequency"], 1, sim)
+    lanes_count = int_value(name, "lanes_count", cfg["lanes_count"], 1)
+    vehicles_count = int_value(name, "vehicles_count", cfg["vehicles_count"], 0)
+    k = int_value(name, "controlled_vehicles", cfg["controlled_vehicles"], 1)
     total = k + vehicles_count
     num_slots = cfg.get("num_slots", total)
-    num_slots = _int(name, "num_slots", num_slots, total)
+    num_slots = int_value(name, "num_slots", num_slots, total)
     lane0 = cfg["initial_lane_id"]
     if lane0 is not None:
-        lane0 = _int(name, "initial_lane_id", lane0, 0, lanes_count - 1)
-    obs_cfg = _observation(name, cfg["observation"])
-    action = _action(name, cfg["action"])
-    rsr = _speed_range(name, cfg["reward_speed_range"])
+        lane0 = int_value(name, "initial_lane_id", lane0, 0, lanes_count - 1)
+    obs_cfg = observation_config(name, cfg["observation"])
+    action = meta_action_config(name, cfg["action"])
+    rsr = speed_range(name, cfg["reward_speed_range"])
     for key in ("normalize_reward", "offroad_terminal"):
-        if not isinstance(cfg[key], (bool, np.bool_)):
-            raise ValueError(f"{name}: {key} must be True or False, got {cfg[key]!r}")
-    idm = _idm(name, cfg.get("idm"))
+        flag_value(name, key, cfg[key])
+    idm = idm_params(name, cfg.get("idm"))
     task = Highway(name, lanes_count, vehicles_count, k, num_slots, sim, pol, obs_cfg)
     params = HighwayParams(
-        duration=_number(name, "duration", cfg["duration"], positive=True),
-        collision_cost=_cost(name, "collision_cost", cfg.get("collision_cost", 5.0)),
+        duration=number_value(name, "duration", cfg["duration"], positive=True),
+        collision_cost=cost_value(name, "collision_cost", cfg.get("collision_cost", 5.0)),
         target_speeds=action.get("target_speeds", np.linspace(20, 30, 3)),
         idm=idm, obstacles=None,
-        ego_spacing=_number(name, "ego_spacing", cfg["ego_spacing"], positive=True),
-        vehicles_density=_number(name, "vehicles_density", cfg["vehicles_density"], positive=True),
+        ego_spacing=number_value(name, "ego_spacing", cfg["ego_spacing"], positive=True),
+        vehicles_density=number_value(name, "vehicles_density", cfg["vehicles_density"], positive=True),
         initial_lane_id=-1 if lane0 is None else lane0,
-        collision_reward=_number(name, "collision_reward", cfg["collision_reward"]),
-        right_lane_reward=_number(name, "right_lane_reward", cfg["right_lane_reward"]),
-        high_speed_reward=_number(name, "high_speed_reward", cfg["high_speed_reward"]),
-        lane_change_reward=_number(name, "lane_change_reward", cfg["lane_change_reward"]),
-        on_road_reward=_number(name, "on_road_reward", cfg.get("on_road_reward", 0.0)),
-        reward_speed_range=rsr,
+        collision_reward=number_value(name, "collision_reward", cfg["collision_reward"]),
+        right_lane_reward=number_value(name, "right_lane_reward", cfg["right_lane_reward"]),
+        high_speed_reward=number_value(name, "high_speed_reward", cfg["high_speed_reward"]),
+        lane_change_reward=number_value(name, "lane_change_reward", cfg["lane_change_reward"]),
+        on_road_reward=number_value(name, "on_road_reward", cfg.get("on_road_reward", 0.0)),
+        reward_speed_range=(float(rsr[0]), float(rsr[1])),
         normalize_reward=bool(cfg["normalize_reward"]), offroad_terminal=bool(cfg["offroad_terminal"]),
     )
     if params.normalize_reward and params.high_speed_reward + params.right_lane_reward == params.collision_reward:

@@ -30,7 +30,6 @@ agent crashed or all arrived).
 
 from __future__ import annotations
 
-import dataclasses
 from typing import Any
 
 import jax
@@ -39,16 +38,17 @@ import numpy as np
 from flax import struct
 
 from envs_jax import drivers, kinematic_obs, pair_collisions, regulation
+from envs_jax import lane_locate as LL
 from envs_jax import lanes as L
 from envs_jax import vehicle as Veh
 from envs_jax.idm import IDMParams
-from envs_jax.scenarios.highway import (_cost, _int, _number, _observation, _speed_range, _unwrap, check_idm,
-                                      config_given)
+from envs_jax.scenarios.config_values import (config_given, cost_value, flag_value, idm_params, int_value, number_value,
+                                              observation_config, speed_range, unwrap_section)
 from envs_jax.scenarios.intersection import build_road
+from envs_jax.time_limit import step_limit
 from envs_jax.traffic_env import Task, TrafficEnv, TrafficParams
 from envs_jax.traffic_state import TrafficState
 
-IDM_CLASS = "highway_env.vehicle.behavior.IDMVehicle"
 ACTIONS = ("SLOWER", "IDLE", "FASTER")  # DiscreteMetaAction(lateral=False)
 META_INDEX = np.array([4, 1, 3], np.int32)  # their indices in vehicle.ACTION_NAMES
 SPAWN_CLEARANCE = 15.0  # [m] a spawn is dropped when a vehicle is closer
@@ -216,7 +216,7 @@ class IntersectionTraffic(Task):
         bx = lambda a: jnp.broadcast_to(jnp.asarray(a, st.x.dtype), (v,))
         # the closest lane of the new poses only (one, or one per agent), then spread over the slots
         pose = [jnp.atleast_1d(jnp.asarray(a, st.x.dtype)) for a in (x, y, heading)]
-        lane, s, lat, _ = L.locate(lanes, *pose)
+        lane, s, lat, _ = LL.locate(lanes, *pose)
         on_road = L.on_lane_coords(lanes.col("length")[lane], lanes.col("width")[lane], s, lat)
         lane, on_road = jnp.broadcast_to(lane, (v,)), jnp.broadcast_to(on_road, (v,))
         x, y, heading = bx(x), bx(y), bx(heading)
@@ -395,7 +395,7 @@ class IntersectionTrafficEnv(TrafficEnv):
         state = state.replace(time=state.time + 1)
         obs = self.observe(state, params, key)
         reward, cost, terminated, info = self.task.outcome(prev, state, action, params)
-        steps_limit = jnp.ceil(params.duration * self.policy_frequency - 1e-6)
+        steps_limit = step_limit(params.duration, self.policy_frequency)
         truncated = state.time >= steps_limit
         done = jnp.all(terminated) | truncated
         idx = np.asarray(self.controlled)
@@ -457,7 +457,7 @@ class IntersectionTrafficEnv(TrafficEnv):
 # Configuration: highway-env's config dict and keyword overrides -> an IntersectionTrafficEnv
 
 def _action(name, value):
-    action = _unwrap(name, "action", value, "MultiAgentAction", "action_config")
+    action = unwrap_section(name, "action", value, "MultiAgentAction", "action_config")
     kind = action.pop("type", None)
     if kind != "DiscreteMetaAction":
         raise ValueError(f"{name}: action type must be 'DiscreteMetaAction' (or MultiAgentAction of it), got {kind!r}")
@@ -476,7 +476,7 @@ def _action(name, value):
 
 def default_num_slots(controlled: int, initial_vehicle_count: int, duration: float, policy_frequency: int) -> int:
     """Slots no default episode can fill: the agents, the initial vehicles and challenger, one spawn per step."""
-    return controlled + initial_vehicle_count + int(np.ceil(duration * policy_frequency - 1e-6))
+    return controlled + initial_vehicle_count + int(step_limit(duration, policy_frequency))
 
 
 def make_intersection(name: str, env_config: dict | None = None, **overrides) -> IntersectionTrafficEnv:
@@ -494,13 +494,13 @@ def make_intersection(name: str, env_config: dict | None = None, **overrides) ->
                      "target_speeds": list(TARGET_SPEEDS)}
     cfg.update(config_given(name, cfg, OWN_KEYS, env_config, overrides, "allowed: False"))
 
-    sim = _int(name, "simulation_frequency", cfg["simulation_frequency"], 2)
-    pol = _int(name, "policy_frequency", cfg["policy_frequency"], 1, sim)
-    k = _int(name, "controlled_vehicles", cfg["controlled_vehicles"], 1)
-    n_init = _int(name, "initial_vehicle_count", cfg["initial_vehicle_count"], 1)
-    duration = _number(name, "duration", cfg["duration"], positive=True)
+    sim = int_value(name, "simulation_frequency", cfg["simulation_frequency"], 2)
+    pol = int_value(name, "policy_frequency", cfg["policy_frequency"], 1, sim)
+    k = int_value(name, "controlled_vehicles", cfg["controlled_vehicles"], 1)
+    n_init = int_value(name, "initial_vehicle_count", cfg["initial_vehicle_count"], 1)
+    duration = number_value(name, "duration", cfg["duration"], positive=True)
     num_slots = cfg.get("num_slots", default_num_slots(k, n_init, duration, pol))
-    num_slots = _int(name, "num_slots", num_slots, k + 1)
+    num_slots = int_value(name, "num_slots", num_slots, k + 1)
     dest = cfg["destination"]
     if dest is None:
         destination = -1
@@ -508,34 +508,24 @@ def make_intersection(name: str, env_config: dict | None = None, **overrides) ->
         destination = int(dest[1])
     else:
         raise ValueError(f"{name}: destination must be one of 'o0'..'o3' or None (random exit), got {dest!r}")
-    p = _number(name, "spawn_probability", cfg["spawn_probability"])
+    p = number_value(name, "spawn_probability", cfg["spawn_probability"])
     if not 0 <= p <= 1:
         raise ValueError(f"{name}: spawn_probability must be in [0, 1], got {p!r}")
-    obs_cfg = _observation(name, cfg["observation"])
+    obs_cfg = observation_config(name, cfg["observation"])
     ts = _action(name, cfg["action"])
-    rsr = _speed_range(name, cfg["reward_speed_range"])
+    rsr = speed_range(name, cfg["reward_speed_range"])
     for key in ("normalize_reward", "offroad_terminal"):
-        if not isinstance(cfg[key], (bool, np.bool_)):
-            raise ValueError(f"{name}: {key} must be True or False, got {cfg[key]!r}")
-    idm = cfg.get("idm", intersection_idm())
-    if isinstance(idm, dict):
-        fields = {f.name for f in dataclasses.fields(IDMParams)}
-        bad = sorted(set(idm) - fields)
-        if bad:
-            raise ValueError(f"{name}: unknown idm field(s) {bad}; allowed: {sorted(fields)}")
-        idm = dataclasses.replace(intersection_idm(), **idm)
-    if not isinstance(idm, IDMParams):
-        raise ValueError(f"{name}: idm must be an IDMParams or a dict of its fields, got {type(idm).__name__}")
-    idm = check_idm(name, idm)
+        flag_value(name, key, cfg[key])
+    idm = idm_params(name, cfg.get("idm"), intersection_idm())
     task = IntersectionTraffic(name, k, n_init, num_slots, sim, pol, obs_cfg)
     params = IntersectionTrafficParams(
-        duration=duration, collision_cost=_cost(name, "collision_cost", cfg.get("collision_cost", 5.0)),
+        duration=duration, collision_cost=cost_value(name, "collision_cost", cfg.get("collision_cost", 5.0)),
         target_speeds=ts, idm=idm, obstacles=None, spawn_probability=p, destination=destination,
-        collision_reward=_number(name, "collision_reward", cfg["collision_reward"]),
-        high_speed_reward=_number(name, "high_speed_reward", cfg["high_speed_reward"]),
-        arrived_reward=_number(name, "arrived_reward", cfg["arrived_reward"]),
-        on_road_reward=_number(name, "on_road_reward", cfg.get("on_road_reward", 0.0)),
-        reward_speed_range=rsr,
+        collision_reward=number_value(name, "collision_reward", cfg["collision_reward"]),
+        high_speed_reward=number_value(name, "high_speed_reward", cfg["high_speed_reward"]),
+        arrived_reward=number_value(name, "arrived_reward", cfg["arrived_reward"]),
+        on_road_reward=number_value(name, "on_road_reward", cfg.get("on_road_reward", 0.0)),
+        reward_speed_range=(float(rsr[0]), float(rsr[1])),
         normalize_reward=bool(cfg["normalize_reward"]), offroad_terminal=bool(cfg["offroad_terminal"]))
     if params.normalize_reward and params.arrived_reward == params.collision_reward:
         raise ValueError(f"{name}: normalize_reward needs arrived_reward != collision_reward")

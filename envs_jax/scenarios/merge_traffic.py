@@ -36,7 +36,7 @@ from flax import struct
 from envs_jax import kinematic_obs
 from envs_jax import lanes as L
 from envs_jax import vehicle as Veh
-from envs_jax.scenarios import highway as H
+from envs_jax.scenarios import config_values as CV
 from envs_jax.scenarios.merge import build_road
 from envs_jax.traffic_env import Task, TrafficEnv, TrafficParams
 
@@ -185,25 +185,25 @@ def make_merge(name: str = NAME, env_config: dict | None = None, **overrides) ->
     cfg = dict(DEFAULTS)
     cfg["observation"] = {"type": "Kinematics"}
     cfg["action"] = {"type": "DiscreteMetaAction"}
-    cfg.update(H.config_given(name, cfg, OWN_KEYS, env_config, overrides, "merge-v1 is not implemented"))
+    cfg.update(CV.config_given(name, cfg, OWN_KEYS, env_config, overrides, "merge-v1 is not implemented"))
 
-    sim = H._int(name, "simulation_frequency", cfg["simulation_frequency"], 1)
-    pol = H._int(name, "policy_frequency", cfg["policy_frequency"], 1, sim)
-    k = H._int(name, "controlled_vehicles", cfg["controlled_vehicles"], 1, MAX_AGENTS)
+    sim = CV.int_value(name, "simulation_frequency", cfg["simulation_frequency"], 1)
+    pol = CV.int_value(name, "policy_frequency", cfg["policy_frequency"], 1, sim)
+    k = CV.int_value(name, "controlled_vehicles", cfg["controlled_vehicles"], 1, MAX_AGENTS)
     total = k + NUM_TRAFFIC
-    num_slots = H._int(name, "num_slots", cfg.get("num_slots", total), total)
-    obs_cfg = H._observation(name, cfg["observation"])
-    action = H._action(name, cfg["action"])
-    rsr = H._speed_range(name, cfg["reward_speed_range"])
+    num_slots = CV.int_value(name, "num_slots", cfg.get("num_slots", total), total)
+    obs_cfg = CV.observation_config(name, cfg["observation"])
+    action = CV.meta_action_config(name, cfg["action"])
+    rsr = CV.speed_range(name, cfg["reward_speed_range"])
     duration = cfg.get("duration")
-    duration = np.inf if duration is None else H._number(name, "duration", duration, positive=True)
+    duration = np.inf if duration is None else CV.number_value(name, "duration", duration, positive=True)
     task = MergeTask(k, num_slots, sim, pol, obs_cfg)
-    num = lambda key: H._number(name, key, cfg[key])
+    num = lambda key: CV.number_value(name, key, cfg[key])
     params = MergeTaskParams(
         duration=duration,
-        collision_cost=H._cost(name, "collision_cost", cfg.get("collision_cost", 5.0)),
+        collision_cost=CV.cost_value(name, "collision_cost", cfg.get("collision_cost", 5.0)),
         target_speeds=action.get("target_speeds", np.linspace(20, 30, 3)),
-        idm=H._idm(name, cfg.get("idm")),
+        idm=CV.idm_params(name, cfg.get("idm")),
         obstacles=np.array([[task.obstacle[0], task.obstacle[1], 0.0, OBSTACLE_SIZE, OBSTACLE_SIZE]]),
         collision_reward=num("collision_reward"), right_lane_reward=num("right_lane_reward"),
         high_speed_reward=num("high_speed_reward"), reward_speed_range=rsr,

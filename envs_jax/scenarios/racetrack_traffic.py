@@ -31,7 +31,6 @@ accepted too.
 
 from __future__ import annotations
 
-import dataclasses
 from typing import Any
 
 import jax
@@ -42,9 +41,9 @@ from flax import struct
 from envs_jax import kinematic_obs, occupancy_grid
 from envs_jax import lanes as L
 from envs_jax.continuous_traffic_env import ContinuousTrafficEnv
-from envs_jax.idm import IDMParams
+from envs_jax.scenarios.config_values import (config_given, cost_value, flag_value, idm_params, int_value, number_value,
+                                              unwrap_section)
 from envs_jax.scenarios.racetrack import build_road
-from envs_jax.scenarios.highway import _cost, _int, _number, _unwrap, check_idm, config_given
 from envs_jax.traffic_env import Task, TrafficParams
 
 NAME = "racetrack-v0"
@@ -194,7 +193,7 @@ class RacetrackTraffic(Task):
 # Configuration: highway-env's config dict and keyword overrides -> an environment
 
 def _action(value) -> tuple:
-    action = _unwrap(NAME, "action", value, "MultiAgentAction", "action_config")
+    action = unwrap_section(NAME, "action", value, "MultiAgentAction", "action_config")
     kind = action.pop("type", None)
     if kind != "ContinuousAction":
         raise ValueError(f"{NAME}: action type must be 'ContinuousAction' (or MultiAgentAction of it), got {kind!r}")
@@ -229,7 +228,7 @@ def _action(value) -> tuple:
 
 
 def _observation(value):
-    obs = _unwrap(NAME, "observation", value, "MultiAgentObservation", "observation_config")
+    obs = unwrap_section(NAME, "observation", value, "MultiAgentObservation", "observation_config")
     kind = obs.get("type")
     if kind == "OccupancyGrid":
         return occupancy_grid.OccupancyGridConfig.from_config(obs, where=f"{NAME}: observation")
@@ -253,44 +252,34 @@ def make_racetrack(name: str = NAME, env_config: dict | None = None, **overrides
                          "racetrack-v1 is not implemented; racetrack-v0 searches neighbours on one lane segment (False)")
     for key in INERT_KEYS:
         if key in given:
-            _number(name, key, given.pop(key), positive=True)
+            number_value(name, key, given.pop(key), positive=True)
     cfg.update(given)
 
-    sim = _int(name, "simulation_frequency", cfg["simulation_frequency"], 1)
-    pol = _int(name, "policy_frequency", cfg["policy_frequency"], 1, sim)
-    k = _int(name, "controlled_vehicles", cfg["controlled_vehicles"], 1)
-    others = _int(name, "other_vehicles", cfg["other_vehicles"], 0)
+    sim = int_value(name, "simulation_frequency", cfg["simulation_frequency"], 1)
+    pol = int_value(name, "policy_frequency", cfg["policy_frequency"], 1, sim)
+    k = int_value(name, "controlled_vehicles", cfg["controlled_vehicles"], 1)
+    others = int_value(name, "other_vehicles", cfg["other_vehicles"], 0)
     total = k + others
-    num_slots = _int(name, "num_slots", cfg.get("num_slots", total), total)
-    duration = _number(name, "duration", cfg["duration"], positive=True)
+    num_slots = int_value(name, "num_slots", cfg.get("num_slots", total), total)
+    duration = number_value(name, "duration", cfg["duration"], positive=True)
     obs_cfg = _observation(cfg["observation"])
     lon, lat, action = _action(cfg["action"])
-    if not isinstance(cfg["terminate_off_road"], (bool, np.bool_)):
-        raise ValueError(f"{name}: terminate_off_road must be True or False, got {cfg['terminate_off_road']!r}")
-    idm = cfg.get("idm", IDMParams())
-    if isinstance(idm, dict):
-        fields = {f.name for f in dataclasses.fields(IDMParams)}
-        bad = sorted(set(idm) - fields)
-        if bad:
-            raise ValueError(f"{name}: unknown idm field(s) {bad}; allowed: {sorted(fields)}")
-        idm = IDMParams(**idm)
-    if not isinstance(idm, IDMParams):
-        raise ValueError(f"{name}: idm must be an IDMParams or a dict of its fields, got {type(idm).__name__}")
-    idm = check_idm(name, idm)
-    collision_reward = _number(name, "collision_reward", cfg["collision_reward"])
+    flag_value(name, "terminate_off_road", cfg["terminate_off_road"])
+    idm = idm_params(name, cfg.get("idm"))
+    collision_reward = number_value(name, "collision_reward", cfg["collision_reward"])
     if collision_reward == 1.0:
         raise ValueError(f"{name}: collision_reward must differ from 1 (the reward is normalised over "
                          f"[collision_reward, 1])")
-    costs = {key: _cost(name, key, cfg.get(key, default)) for key, default in
+    costs = {key: cost_value(name, key, cfg.get(key, default)) for key, default in
              (("collision_cost", 1.0), ("offroad_cost", 0.5))}
     task = RacetrackTraffic(k, others, num_slots, sim, pol, clock_steps(duration, pol), obs_cfg, lon, lat)
     params = RacetrackTrafficParams(
         duration=duration, target_speeds=action["target_speeds"], idm=idm, obstacles=None,
         collision_reward=collision_reward,
-        lane_centering_cost=_cost(name, "lane_centering_cost", cfg["lane_centering_cost"]),
-        lane_centering_reward=_number(name, "lane_centering_reward", cfg["lane_centering_reward"]),
-        action_reward=_number(name, "action_reward", cfg["action_reward"]),
-        on_road_reward=_number(name, "on_road_reward", cfg.get("on_road_reward", 0.0)),
+        lane_centering_cost=cost_value(name, "lane_centering_cost", cfg["lane_centering_cost"]),
+        lane_centering_reward=number_value(name, "lane_centering_reward", cfg["lane_centering_reward"]),
+        action_reward=number_value(name, "action_reward", cfg["action_reward"]),
+        on_road_reward=number_value(name, "on_road_reward", cfg.get("on_road_reward", 0.0)),
         terminate_off_road=bool(cfg["terminate_off_road"]),
         acceleration_range=action["acceleration_range"], steering_range=action["steering_range"],
         **costs)

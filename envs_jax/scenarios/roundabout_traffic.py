@@ -32,9 +32,10 @@ import numpy as np
 from flax import struct
 
 from envs_jax import kinematic_obs
+from envs_jax import lane_locate as LL
 from envs_jax import lanes as L
 from envs_jax import vehicle as Veh
-from envs_jax.scenarios import highway as H
+from envs_jax.scenarios import config_values as CV
 from envs_jax.scenarios.roundabout import build_road
 from envs_jax.traffic_env import Task, TrafficEnv, TrafficParams
 
@@ -177,7 +178,7 @@ class RoundaboutTask(Task):
                                  jnp.asarray(draws["delta"], dtype)])
         dest = jnp.concatenate([jnp.asarray(self.agent_dest), jnp.asarray(draws["destination"], jnp.int32)])
         # plan_route_to starts from the closest lane of the new vehicle, not the lane it was made on
-        start = L.locate(self.road.lanes, x, y, heading)[0]
+        start = LL.locate(self.road.lanes, x, y, heading)[0]
         roads = jnp.asarray(self.route_roads)[start, dest]
         ids = jnp.asarray(self.route_ids)[start, dest]
         lens = jnp.asarray(self.route_lens)[start, dest]
@@ -219,31 +220,30 @@ def make_roundabout(name: str = NAME, env_config: dict | None = None, **override
     cfg = dict(DEFAULTS)
     cfg["observation"] = DEFAULT_OBSERVATION
     cfg["action"] = DEFAULT_ACTION
-    cfg.update(H.config_given(name, cfg, OWN_KEYS, env_config, overrides, "roundabout-v1 is not implemented"))
+    cfg.update(CV.config_given(name, cfg, OWN_KEYS, env_config, overrides, "roundabout-v1 is not implemented"))
 
-    sim = H._int(name, "simulation_frequency", cfg["simulation_frequency"], 1)
-    pol = H._int(name, "policy_frequency", cfg["policy_frequency"], 1, sim)
-    k = H._int(name, "controlled_vehicles", cfg["controlled_vehicles"], 1, MAX_AGENTS)
+    sim = CV.int_value(name, "simulation_frequency", cfg["simulation_frequency"], 1)
+    pol = CV.int_value(name, "policy_frequency", cfg["policy_frequency"], 1, sim)
+    k = CV.int_value(name, "controlled_vehicles", cfg["controlled_vehicles"], 1, MAX_AGENTS)
     total = k + NUM_TRAFFIC
-    num_slots = H._int(name, "num_slots", cfg.get("num_slots", total), total)
+    num_slots = CV.int_value(name, "num_slots", cfg.get("num_slots", total), total)
     incoming = cfg["incoming_vehicle_destination"]
     if incoming is not None:
-        incoming = H._int(name, "incoming_vehicle_destination", incoming, 0, len(DESTINATIONS) - 1)
-    obs_cfg = H._observation(name, cfg["observation"])
-    action = H._action(name, cfg["action"])
-    if not isinstance(cfg["normalize_reward"], (bool, np.bool_)):
-        raise ValueError(f"{name}: normalize_reward must be True or False, got {cfg['normalize_reward']!r}")
+        incoming = CV.int_value(name, "incoming_vehicle_destination", incoming, 0, len(DESTINATIONS) - 1)
+    obs_cfg = CV.observation_config(name, cfg["observation"])
+    action = CV.meta_action_config(name, cfg["action"])
+    CV.flag_value(name, "normalize_reward", cfg["normalize_reward"])
     task = RoundaboutTask(k, num_slots, sim, pol, obs_cfg)
-    num = lambda key: H._number(name, key, cfg[key])
+    num = lambda key: CV.number_value(name, key, cfg[key])
     params = RoundaboutTaskParams(
-        duration=H._number(name, "duration", cfg["duration"], positive=True),
-        collision_cost=H._cost(name, "collision_cost", cfg.get("collision_cost", 5.0)),
+        duration=CV.number_value(name, "duration", cfg["duration"], positive=True),
+        collision_cost=CV.cost_value(name, "collision_cost", cfg.get("collision_cost", 5.0)),
         target_speeds=action.get("target_speeds", np.linspace(20, 30, 3)),
-        idm=H._idm(name, cfg.get("idm")), obstacles=None,
+        idm=CV.idm_params(name, cfg.get("idm")), obstacles=None,
         incoming_vehicle_destination=-1 if incoming is None else incoming,
         collision_reward=num("collision_reward"), high_speed_reward=num("high_speed_reward"),
         right_lane_reward=num("right_lane_reward"), lane_change_reward=num("lane_change_reward"),
-        on_road_reward=H._number(name, "on_road_reward", cfg.get("on_road_reward", 0.0)),
+        on_road_reward=CV.number_value(name, "on_road_reward", cfg.get("on_road_reward", 0.0)),
         normalize_reward=bool(cfg["normalize_reward"]),
     )
     if params.normalize_reward and params.high_speed_reward == params.collision_reward:

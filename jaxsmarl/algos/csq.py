@@ -30,7 +30,6 @@ targets bootstrap every transition with the discount scaled by the batch's done 
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from typing import Any
 
@@ -41,70 +40,15 @@ import numpy as np
 import optax
 
 from jaxsmarl import bootstrap, networks
-from jaxsmarl.hierarchy import agent_order, is_chain, validate_hierarchy
+from jaxsmarl.algos.csq_config import CSQConfig
+from jaxsmarl.exploration import linear_decay
+from jaxsmarl.hierarchy import agent_order, is_chain
 from jaxsmarl.stackelberg import stackelberg_equilibrium
+from jaxsmarl.transition import Transition
 
 __all__ = ["CSQConfig", "CSQState", "CSQAgent"]
 
 Q, G = 0, 1  # kind axis of the stacked critics
-
-
-@dataclasses.dataclass(frozen=True)
-class CSQConfig:
-    """Static CSQ hyper-parameters (defaults: the authors' merge CSQ run, docs/algorithms.md)."""
-
-    num_actions: tuple[int, ...] = (5, 5)
-    obs_dim: int = 8
-    hidden_sizes: tuple[int, ...] = (64, 64, 64)
-    init: str = "torch"  # "torch" (authors' PyTorch default init) or "lecun" (flax default)
-    lr: float = 1e-3
-    gamma: float = 0.95
-    tau: float = 0.01
-    target_update_every: int = 10
-    batch_size: int = 64
-    cost_threshold: tuple[float, ...] = (5.0, 5.0)  # d_i
-    eps_start: tuple[float, ...] = (0.1, 0.1)  # exploration probability per agent (leader: their noise_rate)
-    eps_min: tuple[float, ...] = (0.0, 0.0)
-    eps_decay: float = 5e-6  # per environment step
-    leader_rule: str = "stackelberg"  # or "authors"
-    infeasible: str = "min_cost"  # or "argmax"
-    tie_break: str | None = None  # None: solver default for the leader rule
-    td_action_state: str = "next"  # "next" (paper, p14 at s') or "current" (authors: s)
-    td_action_noise: bool = False  # authors: epsilon-greedy target actions
-    td_equilibrium_net: str = "online"  # critics used to solve p14 for the targets: "online" (p14) or "target"
-    bootstrap_on_truncation: bool = True  # False: the time limit also stops bootstrapping (authors)
-    terminal_mask: str = "sample"  # or "batch_mean": the authors' effective rule (jaxsmarl.bootstrap)
-    hierarchy: Any = None  # levels of agent indices or "0|1|2" (jaxsmarl.hierarchy); None: the chain 0|1|...|K-1
-
-    def __post_init__(self):
-        if self.terminal_mask not in bootstrap.TERMINAL_MASKS:
-            raise ValueError(f"terminal_mask must be one of {', '.join(bootstrap.TERMINAL_MASKS)}, "
-                             f"got {self.terminal_mask!r}")
-        n = len(self.num_actions)
-        for name in ("cost_threshold", "eps_start", "eps_min"):
-            if len(getattr(self, name)) != n:
-                raise ValueError(f"{name} has {len(getattr(self, name))} entries but there are {n} agents "
-                                 f"(num_actions {self.num_actions}); give one per agent")
-        if self.hierarchy is not None:
-            object.__setattr__(self, "hierarchy", validate_hierarchy(self.hierarchy, n))
-            if self.leader_rule == "authors" and not is_chain(self.hierarchy):
-                raise ValueError(f"leader_rule='authors' is defined for a chain of single agents; hierarchy "
-                                 f"{self.hierarchy} has a level of several agents: use leader_rule='stackelberg'")
-
-    @property
-    def levels(self) -> tuple[tuple[int, ...], ...]:
-        """The hierarchy as levels of agent indices (the chain 0|1|...|K-1 when none is given)."""
-        return tuple((i,) for i in range(self.n_agents)) if self.hierarchy is None else self.hierarchy
-
-    @property
-    def n_agents(self) -> int:
-        return len(self.num_actions)
-
-    @property
-    def resolved_tie_break(self) -> str:
-        if self.tie_break is not None:
-            return self.tie_break
-        return "last" if self.leader_rule == "authors" else "first"
 
 
 @flax.struct.dataclass
@@ -113,17 +57,6 @@ class CSQState:
     target_params: Any
     opt_state: Any
     n_updates: jax.Array  # int32, gradient steps taken
-
-
-@flax.struct.dataclass
-class Transition:
-    obs: jax.Array  # [n_agents, obs_dim]
-    action: jax.Array  # int32 [n_agents]
-    reward: jax.Array  # [n_agents]
-    cost: jax.Array  # [n_agents]
-    next_obs: jax.Array  # [n_agents, obs_dim] (pre-reset observation at episode ends)
-    terminated: jax.Array  # bool [n_agents], per-agent terminal flag (not the time limit)
-    truncated: jax.Array  # bool [], time limit reached
 
 
 class CSQAgent:
@@ -147,8 +80,7 @@ class CSQAgent:
     def epsilon(self, env_step: jax.Array) -> jax.Array:
         """Per-agent exploration probability after ``env_step`` steps: ``max(min, start - decay * step)``."""
         c = self.config
-        start, low = jnp.asarray(c.eps_start, jnp.float32), jnp.asarray(c.eps_min, jnp.float32)
-        return jnp.maximum(low, start - c.eps_decay * jnp.asarray(env_step, jnp.float32))
+        return linear_decay(c.eps_start, c.eps_min, c.eps_decay, env_step)
 
     def exploration(self, env_step: jax.Array) -> jax.Array:
         """The training loop's exploration parameters: the per-agent epsilon."""

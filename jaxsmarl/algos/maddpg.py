@@ -36,7 +36,6 @@ batch's done fraction, :mod:`jaxsmarl.bootstrap`).
 
 from __future__ import annotations
 
-import dataclasses
 from typing import Any
 
 import flax.struct
@@ -46,70 +45,17 @@ import optax
 
 from jaxsmarl import bootstrap, networks
 from jaxsmarl.actor import Actor, actor_columns, make_actor
+from jaxsmarl.algos.maddpg_config import MADDPGConfig
+from jaxsmarl.exploration import linear_decay
 from jaxsmarl.lagrangian import Lagrangian
 from jaxsmarl.networks import critic_values, critic_values_columns, layer_name
+from jaxsmarl.transition import Transition
 
 __all__ = ["MADDPGConfig", "MADDPGState", "MADDPGAgent", "Actor", "Transition", "critic_values",
            "critic_values_columns", "actor_columns"]
 
 Q, G = 0, 1  # kind axis of the stacked critics
 LEADER, FOLLOWER = 0, 1
-
-
-@dataclasses.dataclass(frozen=True)
-class MADDPGConfig:
-    """Static hyper-parameters (defaults: the authors' intersection CS-MADDPG run, docs/algorithms.md)."""
-
-    action_dim: int = 1  # per agent
-    obs_dim: int = 8
-    hidden_sizes: tuple[int, ...] = (64, 64, 64)
-    init: str = "torch"  # "torch" (authors' PyTorch default init) or "lecun"
-    max_action: float = 1.0
-    stackelberg: bool = True  # follower conditioned on a1 and leader gradient through mu2
-    constrained: bool = True  # cost critics + Lagrange multipliers
-    critic_input: str = "joint"  # "joint" (paper: s = [o1, o2]) or "own" (authors: o_i)
-    lr_actor: float = 1e-4
-    lr_critic: float = 1e-3
-    gamma: float = 0.95
-    tau: float = 0.01
-    target_update_every: int = 10
-    cost_threshold: tuple[float, ...] = (5.0, 5.0)
-    lambda_rule: str = "dual"  # "dual" (paper p22) or "authors"
-    lr_lambda: float = 1e-3
-    lambda_init: float = 0.0
-    lambda_max: float = 100.0
-    noise_start: tuple[float, ...] = (0.1, 0.1)  # Gaussian action-noise std per agent
-    noise_min: tuple[float, ...] = (0.0, 0.0)
-    eps_start: tuple[float, ...] = (0.1, 0.1)  # probability of a uniform random action per agent
-    eps_min: tuple[float, ...] = (0.0, 0.0)
-    explore_decay: float = 5e-7  # per environment step, both schedules
-    bootstrap_on_truncation: bool = True
-    actor_order: str = "simultaneous"  # or "sequential": the follower's actor step sees the stepped leader actor
-    terminal_mask: str = "sample"  # or "batch_mean": the authors' effective rule (jaxsmarl.bootstrap)
-
-    def __post_init__(self):
-        if self.critic_input not in ("joint", "own"):
-            raise ValueError(f"critic_input must be 'joint' or 'own', got {self.critic_input!r}")
-        if self.init not in ("torch", "lecun"):
-            raise ValueError(f"init must be 'torch' or 'lecun', got {self.init!r}")
-        if self.terminal_mask not in bootstrap.TERMINAL_MASKS:
-            raise ValueError(f"terminal_mask must be one of {', '.join(bootstrap.TERMINAL_MASKS)}, "
-                             f"got {self.terminal_mask!r}")
-        for name in ("cost_threshold", "noise_start", "noise_min", "eps_start", "eps_min"):
-            if len(getattr(self, name)) != 2:
-                raise ValueError(f"{name} needs one value per agent [leader, follower], got {getattr(self, name)}")
-
-    @property
-    def n_kinds(self) -> int:
-        return 2 if self.constrained else 1
-
-    @property
-    def critic_obs_dim(self) -> int:
-        return 2 * self.obs_dim if self.critic_input == "joint" else self.obs_dim
-
-    @property
-    def follower_in_dim(self) -> int:
-        return self.obs_dim + (self.action_dim if self.stackelberg else 0)
 
 
 @flax.struct.dataclass
@@ -122,17 +68,6 @@ class MADDPGState:
     critic_opt: Any
     lam: jax.Array  # [2] Lagrange multipliers (unused when unconstrained)
     n_updates: jax.Array  # int32
-
-
-@flax.struct.dataclass
-class Transition:
-    obs: jax.Array  # [2, obs_dim]
-    action: jax.Array  # [2, action_dim] executed actions
-    reward: jax.Array  # [2]
-    cost: jax.Array  # [2]
-    next_obs: jax.Array  # [2, obs_dim] (pre-reset observation at episode ends)
-    terminated: jax.Array  # bool [2], per-agent terminal flag
-    truncated: jax.Array  # bool [], time limit
 
 
 class MADDPGAgent:
@@ -225,9 +160,8 @@ class MADDPGAgent:
     def exploration(self, env_step: jax.Array) -> dict:
         """``{"eps": [2], "noise": [2]}`` after ``env_step`` steps: ``max(min, start - decay * step)``."""
         c = self.config
-        t = jnp.asarray(env_step, jnp.float32)
-        sched = lambda s, m: jnp.maximum(jnp.asarray(m, jnp.float32), jnp.asarray(s, jnp.float32) - c.explore_decay * t)
-        return {"eps": sched(c.eps_start, c.eps_min), "noise": sched(c.noise_start, c.noise_min)}
+        return {"eps": linear_decay(c.eps_start, c.eps_min, c.explore_decay, env_step),
+                "noise": linear_decay(c.noise_start, c.noise_min, c.explore_decay, env_step)}
 
     def _explore(self, mu: jax.Array, key: jax.Array, eps: jax.Array, noise: jax.Array) -> jax.Array:
         m = self.config.max_action

@@ -25,7 +25,6 @@ The actor update of one agent is the subclass's :meth:`agent_update`.
 from __future__ import annotations
 
 import abc
-import dataclasses
 from typing import Any
 
 import flax.struct
@@ -33,6 +32,7 @@ import jax
 import jax.numpy as jnp
 import optax
 
+from jaxsmarl.algos.ppo_config import PPOConfig
 from jaxsmarl.gae import gae
 from jaxsmarl.gaussian import gaussian_log_prob, std_from_param
 from jaxsmarl.gradients import LoopCarry, gradient_update_fn
@@ -44,52 +44,6 @@ from jaxsmarl.running_stats import RunningStats
 __all__ = ["PPOConfig", "PPOState", "Batch", "PPOBase"]
 
 R, C = 0, 1  # kind axis of the critics: reward, cost
-
-
-@dataclasses.dataclass(frozen=True)
-class PPOConfig:
-    """Static hyper-parameters (defaults: the MACPO repository's Ant-2x4 scripts, docs/algorithms.md)."""
-
-    n_agents: int = 2
-    obs_dim: int = 8
-    action_dim: int = 1
-    hidden: int = 64
-    layer_n: int = 1
-    feature_norm: bool = True
-    obs_norm: bool = True
-    value_norm: bool = True
-    std_x_coef: float = 1.0
-    std_y_coef: float = 0.5
-    gamma: float = 0.99
-    gae_lambda: float = 0.95
-    actor_lr: float = 9e-5
-    critic_lr: float = 5e-3
-    adam_eps: float = 1e-5
-    clip: float = 0.2
-    value_clip: float = 0.2
-    huber_delta: float = 10.0
-    value_loss_coef: float = 1.0
-    max_grad_norm: float = 10.0
-    entropy_coef: float = 0.01
-    ppo_epochs: int = 5
-    num_minibatches: int = 40
-    cost_limit: float = 0.2
-    per_agent_cost: bool = False
-    sequential: bool = True
-    # MAPPO-L
-    lambda_init: float = 0.78
-    lambda_lr: float = 1e-7
-    # MACPO
-    kl_threshold: float = 0.0065
-    cg_iters: int = 10
-    ls_steps: int = 10
-    ls_fraction: float = 0.5
-    fraction_coef: float = 0.27
-    fvp_damping: float = 0.1
-
-    @property
-    def share_dim(self) -> int:
-        return self.n_agents * self.obs_dim
 
 
 @flax.struct.dataclass

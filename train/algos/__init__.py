@@ -2,5 +2,6 @@
 
 Each module calls :func:`train.config.register` with its :class:`train.config.AlgoSpec` s; every module in this
 package is imported by :mod:`train.config`, so adding an algorithm means adding one file here. Modules must not
-import JAX at import time (``make_train`` imports lazily).
+import JAX at import time: their keys come from the JAX-free config dataclasses of :mod:`jaxsmarl.algos`
+(``*_config.py``), and ``make_agent`` imports the learner when a run builds it.
 """

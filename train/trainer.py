@@ -1,7 +1,7 @@
-"""The compiled training loops' shared parts, and the off-policy loop (PureJaxRL style).
+"""The trainer contract every training loop fulfils, and the parts the loops share (PureJaxRL style).
 
-``make_train(config)`` returns a :class:`Trainer` for ``config["algo"]`` (built by the algorithm's
-:class:`train.config.AlgoSpec`). Its functions are pure and per seed; vmap them over seeds:
+``train.build.make_train(config)`` returns a :class:`Trainer` for ``config["algo"]`` (the algorithm's agent in its
+loop). Its functions are pure and per seed; vmap them over seeds:
 
 * ``init(key) -> state``: a pytree with at least ``agent`` (the learner's state, used for evaluation).
 * ``run_chunk(state, start_iter) -> (state, metrics)``: ``chunk_iters`` loop iterations in one compiled program.
@@ -17,40 +17,23 @@
 The host-side driver (:mod:`train.run`) calls ``init`` and ``run_chunk`` itself so it can log and checkpoint
 between chunks; because it runs the very same compiled chunk, a resumed run is bit-identical.
 
-The off-policy loop (:func:`make_offpolicy_train`, CSQ and the MADDPG family): one iteration = act in every env,
-step the auto-resetting envs, store the transitions (with the pre-reset observation as ``s'`` and per-agent
-``terminated``), then ``updates_per_step`` gradient updates once ``warmup`` transitions are stored (Algorithm 1's
-inner loop); warm-up gating is a real branch, not a select, since the iteration index is unbatched. Its agent
-provides ``init(key)``, ``exploration(env_step)`` (a pytree: CSQ's per-agent epsilon, MADDPG's noise scales),
-``act(state, obs, key, explore)``, ``greedy_act(state, obs)``, ``update(state, batch, key, explore) -> (state,
-info)``, ``transition_example()`` and ``Transition``; the config provides ``warmup``, ``batch_size``,
-``updates_per_step`` and ``buffer_size``.
+The loops: :mod:`train.offpolicy` (replay-based: CSQ, the MADDPG family) and :mod:`train.onpolicy` (MAPPO-L, MACPO).
 """
 
 from __future__ import annotations
 
 import functools
-import math
-from typing import Any, Callable, NamedTuple
+from collections.abc import Callable
+from typing import Any, NamedTuple
 
-import flax.struct
 import jax
 import jax.numpy as jnp
 
-from jaxsmarl import buffers, metrics
+from envs_jax.time_limit import episode_step_limit
+from jaxsmarl import metrics
 
-__all__ = ["RunnerState", "Trainer", "make_env", "make_train", "make_offpolicy_train", "make_evaluate",
-           "make_train_fn", "seed_keys", "episode_step_limit", "with_matmul_precision"]
-
-
-@flax.struct.dataclass
-class RunnerState:
-    agent: Any
-    buffer: buffers.BufferState
-    env_state: Any  # [num_envs, ...]
-    obs: jax.Array  # [num_envs, n_agents, obs_dim]
-    key: jax.Array
-    iteration: jax.Array  # int32 loop iterations done
+__all__ = ["Trainer", "make_env", "make_evaluate", "make_train_fn", "seed_keys",
+           "episode_step_limit", "with_matmul_precision", "chunk_layout", "assemble_trainer"]
 
 
 class Trainer(NamedTuple):
@@ -66,7 +49,7 @@ class Trainer(NamedTuple):
     chunk_iters: int
     n_chunks: int  # including the tail chunk
     # Run the seeds of a device one after another (lax.map) instead of batched (vmap) in the training chunks
-    # (train.run.seed_parallel): cheaper on XLA:CPU for the on-policy and MADDPG chunks (set on the CPU only; on a
+    # (train.parallel.seed_parallel): cheaper on XLA:CPU for the on-policy and MADDPG chunks (set on the CPU only; on a
     # GPU the batched seeds keep the device busy; docs/performance.md).
     seeds_in_sequence: bool = False
 
@@ -89,15 +72,6 @@ def seed_keys(config: dict) -> jax.Array:
     """One raw PRNG key per seed: ``fold_in(PRNGKey(seed), i)``."""
     base = jax.random.PRNGKey(config["seed"])
     return jax.vmap(lambda i: jax.random.fold_in(base, i))(jnp.arange(config["num_seeds"]))
-
-
-def make_train(config: dict, env=None) -> Trainer:
-    """The trainer of ``config["algo"]``, its programs traced at ``config["matmul_precision"]`` (full float32
-    matrix products by default on every backend). ``env``: optional ``(env, wrapped_env, params)``."""
-    from train.config import COMMON, spec
-
-    trainer = spec(config["algo"]).make_train(config, env)
-    return with_matmul_precision(trainer, config.get("matmul_precision", COMMON["matmul_precision"]))
 
 
 def with_matmul_precision(trainer: Trainer, precision: str) -> Trainer:
@@ -136,15 +110,6 @@ def make_train_fn(init: Callable, run_chunk: Callable, run_tail: Callable | None
     return train
 
 
-def episode_step_limit(env, params) -> int | None:
-    """The time limit in policy steps, ``ceil(duration * policy_frequency)`` (the env truncates at it), or None
-    when ``params`` is not concrete."""
-    try:
-        return int(math.ceil(float(params.duration) * env.policy_frequency - 1e-6))
-    except (AttributeError, TypeError, jax.errors.ConcretizationTypeError):
-        return None
-
-
 def make_evaluate(wrapped, params, act: Callable, episodes: int, max_steps: int) -> Callable:
     """``evaluate(agent_state, key) -> records[episodes]``: the first finished episode of each of ``episodes``
     fresh envs, acting with ``act(agent_state, obs) -> action`` (greedy); ``records`` as
@@ -181,76 +146,26 @@ def make_evaluate(wrapped, params, act: Callable, episodes: int, max_steps: int)
     return evaluate
 
 
-def make_offpolicy_train(config: dict, env, agent) -> Trainer:
-    """The replay-based loop for ``agent``. ``env``: ``(env, wrapped_env, params)``."""
-    env, wrapped, params = env
-    E = config["num_envs"]
-    U = config["updates_per_step"]
-    B = config["batch_size"]
-    warmup = config["warmup"]
-    total_iters = config["total_steps"] // E
-    chunk_iters = min(config["chunk_steps"] // E, total_iters)
+def chunk_layout(config: dict) -> tuple[int, int, int, int]:
+    """``(total_iters, chunk_iters, n_full, tail)``: loop iterations of the run and of one chunk (each iteration
+    steps all ``num_envs`` envs once), the number of full chunks and the iterations of the shorter last one."""
+    total_iters = config["total_steps"] // config["num_envs"]
+    chunk_iters = min(config["chunk_steps"] // config["num_envs"], total_iters)
     n_full, tail = divmod(total_iters, chunk_iters)
-    capacity = min(config["buffer_size"], config["total_steps"])  # a never-filled buffer needs no more slots
-    n_agents = env.num_agents
+    return total_iters, chunk_iters, n_full, tail
 
-    def init(key) -> RunnerState:
-        k_agent, k_env, k_run = jax.random.split(key, 3)
-        obs, env_state = jax.vmap(wrapped.reset, in_axes=(0, None))(jax.random.split(k_env, E), params)
-        return RunnerState(agent=agent.init(k_agent), buffer=buffers.init(agent.transition_example(), capacity),
-                           env_state=env_state, obs=obs, key=k_run, iteration=jnp.int32(0))
 
-    # A zero update-info record, for iterations before the warm-up ends.
-    def _update_info_zeros():
-        st = jax.eval_shape(agent.init, jax.random.PRNGKey(0))
-        batch = jax.eval_shape(lambda: jax.tree.map(lambda x: jnp.zeros((B,) + x.shape, x.dtype),
-                                                    agent.transition_example()))
-        explore = jax.eval_shape(agent.exploration, jnp.int32(0))
-        info = jax.eval_shape(agent.update, st, batch, jax.random.PRNGKey(0), explore)[1]
-        return jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), info)
-
-    def iteration(rs: RunnerState, t):
-        key, k_act, k_env, k_upd = jax.random.split(rs.key, 4)
-        eps = agent.exploration(t * E)
-        actions = agent.act(rs.agent, rs.obs, k_act, eps)
-        obs, env_state, reward, cost, done, info = jax.vmap(wrapped.step, in_axes=(0, 0, 0, None))(
-            jax.random.split(k_env, E), rs.env_state, actions, params)
-        next_obs = jnp.where(done[:, None, None], info["terminal_obs"], obs)
-        tr = agent.Transition(obs=rs.obs, action=actions, reward=reward, cost=cost, next_obs=next_obs,
-                              terminated=info["terminated"], truncated=info["truncated"])
-        buf = buffers.add(rs.buffer, tr)
-
-        def learn(agent_state):
-            def one(a_state, k):
-                k_sample, k_update = jax.random.split(k)
-                return agent.update(a_state, buffers.sample(buf, k_sample, B), k_update, eps)
-
-            agent_state, infos = jax.lax.scan(one, agent_state, jax.random.split(k_upd, U))
-            return agent_state, jax.tree.map(lambda x: jnp.mean(x, axis=0), infos)
-
-        def skip(agent_state):
-            return agent_state, _update_info_zeros()
-
-        agent_state, upd = jax.lax.cond((t + 1) * E >= warmup, learn, skip, rs.agent)
-        out = {"episode": metrics.episode_record(info), "explore": eps, "update": upd,
-               "updated": (t + 1) * E >= warmup}
-        return RunnerState(agent=agent_state, buffer=buf, env_state=env_state, obs=obs, key=key,
-                           iteration=rs.iteration + 1), out
-
-    def make_chunk(length: int):
-        def run(rs: RunnerState, start_iter):
-            ts = jnp.asarray(start_iter, jnp.int32) + jnp.arange(length, dtype=jnp.int32)
-            return jax.lax.scan(iteration, rs, ts)
-
-        return run
-
+def assemble_trainer(config: dict, env, wrapped, params, agent, init: Callable, make_chunk: Callable,
+                     **extra) -> Trainer:
+    """The :class:`Trainer` of a loop given by ``init(key)`` and ``make_chunk(length) -> run_chunk``: the full and
+    the tail chunk, ``train`` over all of them, and the greedy evaluation of ``agent.greedy_act``. ``extra``:
+    further :class:`Trainer` fields (``seeds_in_sequence``)."""
+    total_iters, chunk_iters, n_full, tail = chunk_layout(config)
     run_chunk = make_chunk(chunk_iters)
     run_tail = make_chunk(tail) if tail else None
-
     train = make_train_fn(init, run_chunk, run_tail, n_full, chunk_iters)
-
     evaluate = make_evaluate(wrapped, params, agent.greedy_act, config["eval_episodes"], config["eval_max_steps"])
-
     return Trainer(config=config, env=env, agent=agent, init=init, run_chunk=run_chunk, run_tail=run_tail,
                    train=train, evaluate=evaluate, total_iters=total_iters, chunk_iters=chunk_iters,
-                   n_chunks=n_full + (1 if tail else 0))
+                   n_chunks=n_full + (1 if tail else 0), **extra)
+

@@ -1,0 +1,189 @@
+"""Checks of highway-env configuration values that every traffic task shares.
+
+A task's factory (``make_highway``, ``make_merge``, ...) reads highway-env's config dict with these: integers and
+numbers in range, the ``MultiAgent*`` wrappers of the action and observation sections, the meta-action and
+kinematics-observation sections, the drivers' IDM constants, and the keys a caller may set at all
+(:func:`config_given`). Every problem raises ``ValueError`` naming the task, the key and what is allowed.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from envs_jax import kinematic_obs
+from envs_jax.idm import IDMParams
+
+__all__ = ["IDM_CLASS", "IDM_RANGES", "RENDER_KEYS", "check_idm", "config_given", "cost_value", "flag_value",
+           "idm_params", "int_value", "meta_action_config", "number_value", "observation_config", "speed_range",
+           "unwrap_section"]
+
+# highway-env's IDM drivers, the only other_vehicles_type the tasks simulate
+IDM_CLASS = "highway_env.vehicle.behavior.IDMVehicle"
+# highway-env config keys that only affect rendering (accepted and ignored)
+RENDER_KEYS = frozenset({"screen_width", "screen_height", "centering_position", "scaling", "show_trajectories",
+                         "render_agent", "offscreen_rendering", "real_time_rendering", "render_mode"})
+
+
+def int_value(name, key, value, lo, hi=None):
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < lo or (hi is not None and value > hi):
+        rng = f">= {lo}" if hi is None else f"in {lo}..{hi}"
+        raise ValueError(f"{name}: {key} must be an integer {rng}, got {value!r}")
+    return int(value)
+
+
+def number_value(name, key, value, positive=False):
+    if (isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating))
+            or not np.isfinite(float(value))):
+        raise ValueError(f"{name}: {key} must be a finite number, got {value!r}")
+    if positive and not float(value) > 0:
+        raise ValueError(f"{name}: {key} must be > 0, got {value!r}")
+    return float(value)
+
+
+def flag_value(name, key, value) -> bool:
+    """A config key that must be True or False."""
+    if not isinstance(value, (bool, np.bool_)):
+        raise ValueError(f"{name}: {key} must be True or False, got {value!r}")
+    return bool(value)
+
+
+def cost_value(name, key, value):
+    """A cost (or cost weight): a finite number >= 0."""
+    value = number_value(name, key, value)
+    if value < 0:
+        raise ValueError(f"{name}: {key} is a cost and must be >= 0, got {value!r}")
+    return value
+
+
+def speed_range(name, value):
+    """``reward_speed_range``: ``(low, high)`` of finite speeds with ``low != high`` (the reward divides by
+    ``high - low``)."""
+    try:
+        arr = np.asarray(value, np.float64)
+    except (TypeError, ValueError):
+        arr = None
+    if arr is None or arr.shape != (2,) or not np.all(np.isfinite(arr)) or arr[0] == arr[1]:
+        raise ValueError(f"{name}: reward_speed_range must be [low, high] of finite speeds with low != high, "
+                         f"got {value!r}")
+    return float(arr[0]), float(arr[1])
+
+
+def unwrap_section(name, section, value, multi, inner):
+    if not isinstance(value, dict):
+        raise ValueError(f"{name}: {section} must be a dict, got {value!r}")
+    if value.get("type") == multi:
+        extra = sorted(k for k in value if k not in ("type", inner))
+        if extra:
+            raise ValueError(f"{name}: {section} keys {extra} are not understood; allowed: ['type', '{inner}']")
+        value = value.get(inner, {})
+        if not isinstance(value, dict):
+            raise ValueError(f"{name}: {section}.{inner} must be a dict, got {value!r}")
+    return dict(value)
+
+
+def meta_action_config(name, value):
+    action = unwrap_section(name, "action", value, "MultiAgentAction", "action_config")
+    kind = action.pop("type", None)
+    if kind != "DiscreteMetaAction":
+        raise ValueError(f"{name}: action type must be 'DiscreteMetaAction' (or MultiAgentAction of it), got {kind!r}")
+    out = {}
+    for key in ("longitudinal", "lateral"):
+        if action.pop(key, True) is not True:
+            raise ValueError(f"{name}: DiscreteMetaAction({key}=False) is not supported; the five meta-actions "
+                             f"{('LANE_LEFT', 'IDLE', 'LANE_RIGHT', 'FASTER', 'SLOWER')} are")
+    if "target_speeds" in action:
+        ts = np.asarray(action.pop("target_speeds"), dtype=np.float64)
+        if ts.ndim != 1 or ts.size < 2 or not np.all(np.diff(ts) > 0) or not np.all(np.isfinite(ts)):
+            raise ValueError(f"{name}: target_speeds must be an increasing list of at least 2 finite speeds, "
+                             f"got {ts.tolist()}")
+        out["target_speeds"] = ts
+    if action:
+        raise ValueError(f"{name}: DiscreteMetaAction keys {sorted(action)} are not understood; allowed: "
+                         f"['type', 'longitudinal', 'lateral', 'target_speeds']")
+    return out
+
+
+def observation_config(name, value):
+    obs = unwrap_section(name, "observation", value, "MultiAgentObservation", "observation_config")
+    return kinematic_obs.KinematicsConfig.from_config(obs, where=f"{name}: observation")
+
+
+# Physical ranges of IDMParams fields: (low, high, bounds allowed, what); every field must also be finite
+IDM_RANGES = {
+    "acc_max": (0.0, None, False, "an acceleration in m/s^2"),
+    "comfort_acc_max": (0.0, None, False, "an acceleration in m/s^2"),
+    "comfort_acc_min": (None, 0.0, False, "a deceleration in m/s^2 (negative)"),
+    "distance_wanted": (0.0, None, True, "a jam distance in metres"),
+    "time_wanted": (0.0, None, True, "a time gap in seconds"),
+    "delta": (0.0, None, False, "an exponent"),
+    "politeness": (0.0, 1.0, True, "a weight in [0, 1]"),
+    "lane_change_min_acc_gain": (0.0, None, True, "an acceleration in m/s^2"),
+    "lane_change_max_braking_imposed": (0.0, None, True, "an acceleration in m/s^2"),
+    "lane_change_delay": (0.0, None, True, "a time in seconds"),
+}
+
+
+def check_idm(name, idm: IDMParams) -> IDMParams:
+    """``idm`` if each field is in its physical range (``IDM_RANGES``; ``delta_range`` is (low, high) with
+    0 < low <= high), else ``ValueError`` naming the field and the allowed range."""
+    for key, (low, high, low_ok, what) in IDM_RANGES.items():
+        value = getattr(idm, key)
+        try:
+            value = float(value)
+        except (TypeError, ValueError):
+            raise ValueError(f"{name}: idm {key} must be a number, got {value!r}") from None
+        ok = np.isfinite(value) and (low is None or (value >= low if low_ok else value > low)) \
+            and (high is None or (value <= high if low_ok else value < high))
+        if not ok:
+            bound = " and ".join(b for b in (None if low is None else f"{'>=' if low_ok else '>'} {low:g}",
+                                             None if high is None else f"{'<=' if low_ok else '<'} {high:g}") if b)
+            raise ValueError(f"{name}: idm {key} is {what} and must be {bound}, got {value!r}")
+    dr = np.asarray(idm.delta_range, np.float64) if np.ndim(idm.delta_range) == 1 else None
+    if dr is None or dr.shape != (2,) or not np.all(np.isfinite(dr)) or not 0 < dr[0] <= dr[1]:
+        raise ValueError(f"{name}: idm delta_range must be (low, high) of exponents with 0 < low <= high, "
+                         f"got {idm.delta_range!r}")
+    return idm
+
+
+def idm_params(name, idm, default: IDMParams | None = None) -> IDMParams:
+    """The ``idm`` key: None (``default``, highway-env's constants when None), an IDMParams, or a dict of its fields
+    replacing those of ``default``."""
+    default = IDMParams() if default is None else default
+    if idm is None:
+        return default
+    if isinstance(idm, dict):
+        fields = {f.name for f in dataclasses.fields(IDMParams)}
+        bad = sorted(set(idm) - fields)
+        if bad:
+            raise ValueError(f"{name}: unknown idm field(s) {bad}; allowed: {sorted(fields)}")
+        idm = dataclasses.replace(default, **idm)
+    if not isinstance(idm, IDMParams):
+        raise ValueError(f"{name}: idm must be an IDMParams or a dict of its fields, got {type(idm).__name__}")
+    return check_idm(name, idm)
+
+
+def config_given(name: str, cfg: dict, own_keys, env_config, overrides, connected_lanes: str | None = None) -> dict:
+    """The keys a traffic task's caller set (``env_config``, then keywords), after the checks every task shares.
+
+    Unknown keys, another ``other_vehicles_type`` than highway-env's IDM drivers and ``manual_control=True`` raise
+    ``ValueError``; rendering keys are dropped. ``neighbour_vehicles_connected_lanes=True`` is refused with
+    ``connected_lanes`` as the reason, or ignored where that is None (roads without connected lanes).
+    """
+    given = dict(env_config or {})
+    given.update(overrides)
+    allowed = sorted(set(cfg) | set(own_keys) | RENDER_KEYS
+                     | {"other_vehicles_type", "manual_control", "neighbour_vehicles_connected_lanes"})
+    unknown = sorted(k for k in given if k not in allowed)
+    if unknown:
+        raise ValueError(f"{name}: unknown config key(s) {unknown}; allowed: {allowed}")
+    for key in RENDER_KEYS:
+        given.pop(key, None)
+    if given.pop("other_vehicles_type", IDM_CLASS) != IDM_CLASS:
+        raise ValueError(f"{name}: other_vehicles_type must be {IDM_CLASS!r} (the IDM/MOBIL drivers)")
+    if given.pop("manual_control", False):
+        raise ValueError(f"{name}: manual_control=True is not supported (there is no keyboard in JAX)")
+    if given.pop("neighbour_vehicles_connected_lanes", False) and connected_lanes is not None:
+        raise ValueError(f"{name}: neighbour_vehicles_connected_lanes=True is not supported: {connected_lanes}")
+    return given
