@@ -26,9 +26,10 @@ from highway_env.envs.highway_env import HighwayEnv, HighwayEnvFast
 from highway_env.envs.merge_env import MergeEnv
 from highway_env.envs.roundabout_env import RoundaboutEnv
 from highway_env.vehicle.behavior import IDMVehicle
+from tests.merge_cavs_oracle import MergeCavsOracle
 
 CLASSES = {"highway-v0": HighwayEnv, "highway-fast-v0": HighwayEnvFast, "merge-v0": MergeEnv,
-           "roundabout-v0": RoundaboutEnv}
+           "roundabout-v0": RoundaboutEnv, "merge-cavs-v0": MergeCavsOracle}
 
 
 def oracle_config(name: str, controlled: int, observation: dict | None = None, **extra) -> dict:
