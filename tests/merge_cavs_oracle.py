@@ -14,7 +14,6 @@ from __future__ import annotations
 import contextlib
 
 import numpy as np
-
 from highway_env import utils
 from highway_env.envs.merge_env import MergeEnv
 from highway_env.road.lane import LineType, SineLane, StraightLane
@@ -104,7 +103,7 @@ class MergeCavsOracle(MergeEnv):
         return (self.config["COLLISION_REWARD"] * (-1 * r["collision"])
                 + self.config["HIGH_SPEED_REWARD"] * r["speed"]
                 + self.config["MERGING_LANE_COST"] * r["merging"]
-                + self.config["HEADWAY_COST"] * (r["headway"] if r["headway"] < 0 else 0))
+                + self.config["HEADWAY_COST"] * (min(0, r["headway"])))
 
     def _is_terminated(self) -> bool:
         return any(v.crashed for v in self.controlled_vehicles)

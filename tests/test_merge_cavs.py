@@ -17,7 +17,7 @@ from envs_jax.scenarios import merge_cavs as MC
 DENSITY_RANGES = {1: ((1, 3), (1, 3)), 2: ((2, 4), (2, 4)), 3: ((4, 6), (3, 5))}
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def env_of(density=3, **kw):
     return envs_jax.make("merge-cavs-v0", traffic_density=density, **kw)
 
@@ -147,7 +147,7 @@ def test_reward_closed_forms():
     np.testing.assert_allclose(float(info["average_speed"]), 6.0, rtol=1e-6)
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def batched():
     """One density-3 env with absolute, unnormalised observations that see behind, and its jit(vmap) reset and
     step (shared by the tests below, so compiled once)."""
@@ -163,9 +163,9 @@ def test_crash_reward_cost_and_termination():
     present = [True, True, False, False, False, False]
     st = state_with(env, {0: (100.0, 0.0, 30.0), 1: (104.0, 0.0, 10.0), 6: (250.0, 0.0, 25.0)}, present)
     batch = lambda a: jnp.stack([a, a])
-    obs, st2, r, c, done, info = step(jax.random.split(jax.random.key(0), 2), jax.tree.map(batch, st),
-                                      jnp.ones((2, 6), jnp.int32))
-    r, c, st2, info = np.asarray(r[0], np.float64), np.asarray(c[0]), jax.tree.map(lambda a: a[0], st2), info
+    _, st2, r, c, done, info = step(jax.random.split(jax.random.key(0), 2), jax.tree.map(batch, st),
+                                    jnp.ones((2, 6), jnp.int32))
+    r, c, st2 = np.asarray(r[0], np.float64), np.asarray(c[0]), jax.tree.map(lambda a: a[0], st2)
     np.testing.assert_array_equal(np.asarray(info["crashed"][0]), [True, True, False, False, False, False])
     v = np.asarray(st2.speed, np.float64)[:2]
     xs = np.asarray(st2.x, np.float64)
@@ -196,7 +196,7 @@ def test_absent_slots_never_collide_or_appear():
     for t in range(T + 1):
         if t:
             keys = jax.random.split(jax.random.key(100 + t), E)
-            obs, st, r, c, done, info = step(keys, st, jnp.asarray(rng.integers(0, 5, (E, K)), jnp.int32))
+            obs, st, r, c, _, info = step(keys, st, jnp.asarray(rng.integers(0, 5, (E, K)), jnp.int32))
             np.testing.assert_array_equal(np.asarray(info["alive"]), alive0[:, :K])
             assert np.all(np.asarray(r)[dead[:, :K]] == 0) and np.all(np.asarray(c)[dead[:, :K]] == 0)
         x, y, crashed, o_all = (np.asarray(a) for a in (st.x, st.y, st.crashed, obs))
@@ -213,24 +213,23 @@ def test_absent_slots_never_collide_or_appear():
                 assert np.all(np.abs(rows[:, None, :] - pos[None]).max(-1).min(1) < 1e-3), (e, t, k)
 
 
-def test_parity_with_highway_env(x64):
-    """An episode of random actions against highway-env's own vehicles on MARL_CAVs' road (built from
-    highway-env's lane classes) with MARL_CAVs' driver constants: every vehicle's pose every frame, lanes,
-    crashes, observations, per-agent rewards and terminations."""
+def check_parity(density, seed, steps):
+    """One random-action episode in both simulators, everything asserted; returns (steps, lane-change decisions,
+    crashed vehicles at the end)."""
     from tests.merge_cavs_oracle import cavs_drivers
     from tests.traffic_oracle import oracle_config, run_oracle
     from tests.traffic_utils import run_jax
 
-    name, seed, steps = "merge-cavs-v0", 7, 15
-    env = env_of(2)
+    name = "merge-cavs-v0"
+    env = env_of(density)
     actions = np.random.default_rng(seed).integers(0, 5, size=(steps, env.num_agents))
-    j = run_jax(name, seed, actions, traffic_density=2)
+    j = run_jax(name, seed, actions, traffic_density=density)
     alive = j["init"]["alive"]
     present = alive[: env.num_agents]
     controlled = tuple(int(i) for i in np.nonzero(present)[0])
-    k = len(controlled)
     with cavs_drivers():
-        o = run_oracle(name, j["init"], controlled, actions[: j["length"]][:, present], oracle_config(name, k))
+        o = run_oracle(name, j["init"], controlled, actions[: j["length"]][:, present],
+                       oracle_config(name, len(controlled)))
     assert len(o["frames"]["x"]) == j["length"] * env.frames
     for key in ("x", "y", "heading", "speed"):
         np.testing.assert_allclose(j["frames"][key][:, alive], o["frames"][key], rtol=0, atol=1e-6, err_msg=key)
@@ -240,4 +239,53 @@ def test_parity_with_highway_env(x64):
     np.testing.assert_allclose(j["reward"][:, present], o["reward"], rtol=0, atol=1e-9)
     np.testing.assert_array_equal(j["terminated"][:, present], o["terminated"])
     tl = o["frames"]["target_lane"]
-    assert (tl[1:] != tl[:-1]).sum() > 0  # someone changed lanes
+    return j["length"], int((tl[1:] != tl[:-1]).sum()), int(o["frames"]["crashed"][-1].sum())
+
+
+def test_parity_with_highway_env(x64):
+    """An episode of random actions against highway-env's own vehicles on MARL_CAVs' road (built from
+    highway-env's lane classes) with MARL_CAVs' driver constants: every vehicle's pose every frame, lanes,
+    crashes, observations, per-agent rewards and terminations."""
+    _, changes, _ = check_parity(2, 7, 15)
+    assert changes > 0
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("density", [1, 2, 3])
+def test_parity_full(density, x64):
+    """Ten random-action episodes per density, up to 40 decisions (8 s) or the first crash."""
+    total = [check_parity(density, 200 + seed, 40) for seed in range(10)]
+    steps, changes, crashes = (sum(t[i] for t in total) for i in range(3))
+    print(f"\nmerge-cavs-v0 density {density}: 10 episodes, {steps} steps, {changes} lane-change decisions, "
+          f"{crashes} vehicles crashed at the end")
+
+
+def test_train_config():
+    """``--scenario merge-cavs``: K = 3 (easy traffic) by default or 4 (medium); other K refused by name."""
+    from train.config import load_config
+
+    assert load_config("merge-cavs", "csq")["agents"] == 3
+    cfg = load_config("merge-cavs", "csq", {"agents": 4, "hierarchy": "0,1|2,3"})
+    assert cfg["agents"] == 4 and cfg["hierarchy"] == "0,1|2,3"
+    for k in (2, 5, 6):
+        with pytest.raises(ValueError, match="'agents' for scenario 'merge-cavs' must be 3..4"):
+            load_config("merge-cavs", "csq", {"agents": k})
+
+
+@pytest.mark.slow
+def test_csq_trains_on_merge_cavs():
+    """CSQ with one leader and two followers through the off-policy loop and the greedy evaluation on easy traffic
+    (1-3 CAVs an episode): finite losses, and agent 0 (present in every episode) returns its reward."""
+    from train.config import load_config
+    from train.loop import make_train, seed_keys
+
+    cfg = load_config("merge-cavs", "csq", {"agents": 3, "hierarchy": "0|1,2", "total_steps": 120, "num_envs": 2,
+                                            "chunk_steps": 120, "num_seeds": 1, "warmup": 16, "batch_size": 16,
+                                            "checkpoint_every": 0, "eval_episodes": 2, "eval_max_steps": 100})
+    trainer = make_train(cfg)
+    assert trainer.env.name == "merge-cavs-v0" and trainer.env.num_agents == 3
+    state, m = jax.jit(trainer.train)(seed_keys(cfg)[0])
+    loss = np.asarray(m["update"]["loss_q"])
+    assert loss.shape == (60, 3) and np.all(np.isfinite(loss))
+    rec = jax.jit(trainer.evaluate)(state.agent, jax.random.PRNGKey(0))
+    assert np.all(np.asarray(rec["returned"])) and np.all(np.asarray(rec["leader_return"]) != 0)
