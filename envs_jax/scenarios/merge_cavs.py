@@ -245,6 +245,8 @@ class MergeCavsTask(Task):
 class MergeCavsEnv(TrafficEnv):
     """A :class:`TrafficEnv` whose absent agents observe zeros."""
 
+    has_absent_agents = True  # info["alive"] flags the agents that drive this episode
+
     def observe(self, state, params, key=None):
         obs = super().observe(state, params, key)
         present = state.alive[np.asarray(self.controlled)]

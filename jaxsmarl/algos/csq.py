@@ -44,7 +44,7 @@ from jaxsmarl import bootstrap, networks
 from jaxsmarl.hierarchy import agent_order, is_chain, validate_hierarchy
 from jaxsmarl.stackelberg import stackelberg_equilibrium
 
-__all__ = ["CSQConfig", "CSQState", "CSQAgent"]
+__all__ = ["CSQAgent", "CSQConfig", "CSQState", "MaskedTransition", "Transition"]
 
 Q, G = 0, 1  # kind axis of the stacked critics
 
@@ -75,6 +75,9 @@ class CSQConfig:
     bootstrap_on_truncation: bool = True  # False: the time limit also stops bootstrapping (authors)
     terminal_mask: str = "sample"  # or "batch_mean": the authors' effective rule (jaxsmarl.bootstrap)
     hierarchy: Any = None  # levels of agent indices or "0|1|2" (jaxsmarl.hierarchy); None: the chain 0|1|...|K-1
+    # True: the env flags agents absent from an episode (info["alive"], stored as the transitions' `active`);
+    # each agent's critic losses then average over the transitions where it drives only
+    absent_agents: bool = False
 
     def __post_init__(self):
         if self.terminal_mask not in bootstrap.TERMINAL_MASKS:
@@ -126,6 +129,11 @@ class Transition:
     truncated: jax.Array  # bool [], time limit reached
 
 
+@flax.struct.dataclass
+class MaskedTransition(Transition):
+    active: jax.Array  # bool [n_agents]: the agent drives in this episode (absent agents are left out of its loss)
+
+
 class CSQAgent:
     """CSQ as a bundle of pure functions over :class:`CSQState` (jit/vmap them freely)."""
 
@@ -135,6 +143,7 @@ class CSQAgent:
         self.config = config
         self.module = networks.JointActionMLP(hidden=tuple(config.hidden_sizes), init_scheme=config.init)
         self.optimizer = optax.adam(config.lr)
+        self.Transition = MaskedTransition if config.absent_agents else Transition
 
     # ---------------------------------------------------------------------------------------------
     def init(self, key: jax.Array) -> CSQState:
@@ -157,9 +166,12 @@ class CSQAgent:
     def transition_example(self) -> Transition:
         c = self.config
         n = c.n_agents
-        return Transition(obs=jnp.zeros((n, c.obs_dim)), action=jnp.zeros((n,), jnp.int32), reward=jnp.zeros((n,)),
-                          cost=jnp.zeros((n,)), next_obs=jnp.zeros((n, c.obs_dim)),
-                          terminated=jnp.zeros((n,), bool), truncated=jnp.zeros((), bool))
+        fields = {"obs": jnp.zeros((n, c.obs_dim)), "action": jnp.zeros((n,), jnp.int32), "reward": jnp.zeros((n,)),
+                  "cost": jnp.zeros((n,)), "next_obs": jnp.zeros((n, c.obs_dim)),
+                  "terminated": jnp.zeros((n,), bool), "truncated": jnp.zeros((), bool)}
+        if c.absent_agents:
+            fields["active"] = jnp.ones((n,), bool)
+        return self.Transition(**fields)
 
     # ---------------------------------------------------------------------------------------------
     def values(self, params, obs: jax.Array) -> jax.Array:
@@ -301,6 +313,11 @@ class CSQAgent:
 
     def loss(self, params, batch: Transition, targets: jax.Array):
         pred = networks.values_at(params, batch.obs, batch.action, self.config.num_actions)
+        if self.config.absent_agents:  # means over each agent's own present transitions
+            w = batch.active.astype(pred.dtype)[..., None]  # [B, n, 1]
+            count = jnp.maximum(jnp.sum(w, axis=0), 1.0)
+            per_net = jnp.sum(w * (pred - jax.lax.stop_gradient(targets)) ** 2, axis=0) / count
+            return jnp.sum(per_net), (per_net, jnp.sum(w * pred, axis=0) / count)
         per_net = jnp.mean((pred - jax.lax.stop_gradient(targets)) ** 2, axis=0)  # [n, 2]
         return jnp.sum(per_net), (per_net, jnp.mean(pred, axis=0))
 

@@ -129,7 +129,7 @@ def make_agent(config: dict, env):
         td_action_state=config["td_action_state"], td_action_noise=config["td_action_noise"],
         td_equilibrium_net=config["td_equilibrium_net"],
         bootstrap_on_truncation=config["bootstrap_on_truncation"], terminal_mask=config["terminal_mask"],
-        hierarchy=config.get("hierarchy"),
+        hierarchy=config.get("hierarchy"), absent_agents=bool(getattr(env, "has_absent_agents", False)),
     ))
 
 
