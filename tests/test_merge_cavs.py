@@ -300,21 +300,23 @@ def test_csq_loss_leaves_absent_agents_out():
     kw = {"num_actions": (5,) * n, "obs_dim": D, "hidden_sizes": (8,), "cost_threshold": (5.0,) * n,
           "eps_start": (0.1,) * n, "eps_min": (0.0,) * n}
     masked, plain = CSQAgent(CSQConfig(absent_agents=True, **kw)), CSQAgent(CSQConfig(**kw))
-    params = plain.init(jax.random.key(0)).params
+    params = jax.jit(plain.init)(jax.random.key(0)).params
     ks = jax.random.split(jax.random.key(1), 3)
-    active = np.ones((B, n), bool)
-    active[:5, 2] = False
-    active[6:, 1] = False
+    active = np.ones((B, n), bool)  # each agent present in 5 of the 8 transitions (one compiled plain loss)
+    active[5:, 0] = False
+    active[:3, 1] = False
+    active[[0, 3, 6], 2] = False
     batch = masked.Transition(obs=jax.random.normal(ks[0], (B, n, D)), action=jax.random.randint(ks[1], (B, n), 0, 5),
                               reward=jnp.zeros((B, n)), cost=jnp.zeros((B, n)), next_obs=jnp.zeros((B, n, D)),
                               terminated=jnp.zeros((B, n), bool), truncated=jnp.zeros((B,), bool),
                               active=jnp.asarray(active))
     targets = jax.random.normal(ks[2], (B, n, 2))
-    _, (per_net, mean_pred) = masked.loss(params, batch, targets)
+    _, (per_net, mean_pred) = jax.jit(masked.loss)(params, batch, targets)
+    plain_loss = jax.jit(plain.loss)
     for k in range(n):
         rows = np.nonzero(active[:, k])[0]
-        sub = jax.tree.map(lambda x, r=rows: x[r], batch)
-        _, (ref, ref_pred) = plain.loss(params, sub, targets[rows])
+        sub = plain.Transition(**{f: getattr(batch, f)[rows] for f in plain.Transition.__dataclass_fields__})
+        _, (ref, ref_pred) = plain_loss(params, sub, targets[rows])
         np.testing.assert_allclose(np.asarray(per_net[k]), np.asarray(ref[k]), rtol=1e-5)
         np.testing.assert_allclose(np.asarray(mean_pred[k]), np.asarray(ref_pred[k]), rtol=1e-5, atol=1e-7)
     assert masked.transition_example().active.shape == (n,) and not hasattr(plain.transition_example(), "active")
