@@ -1,5 +1,5 @@
-"""highway-env oracle of the traffic tasks (``highway-v0``, ``highway-fast-v0``, ``merge-v0``, ``roundabout-v0``)
-with K controlled vehicles.
+"""highway-env oracle of the traffic tasks (``highway-v0``, ``highway-fast-v0``, ``merge-v0``, ``roundabout-v0``,
+and ``merge-cavs-v0`` through tests/merge_cavs_oracle.py) with K controlled vehicles.
 
 highway-env runs its own task (its ``HighwayEnv`` / ``HighwayEnvFast`` classes, its
 ``IDMVehicle`` drivers, its ``road.act`` / ``road.step`` order) from an initial state
