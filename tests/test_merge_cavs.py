@@ -103,9 +103,13 @@ def state_with(env, vehicles, agents_present):
     return jax.jit(env.state_from)(init, env.default_params)[1]
 
 
+@functools.cache
+def outcome_fn(env):
+    return jax.jit(lambda st: env.task.outcome(st, st, jnp.ones(env.num_agents, jnp.int32), env.default_params))
+
+
 def outcome(env, st):
-    step = jax.jit(lambda st: env.task.outcome(st, st, jnp.ones(env.num_agents, jnp.int32), env.default_params))
-    r, c, term, info = step(st)
+    r, c, term, info = outcome_fn(env)(st)
     return np.asarray(r, np.float64), np.asarray(c), np.asarray(term), info
 
 
