@@ -43,7 +43,10 @@ class MergeCavsOracle(MergeEnv):
     def default_config(cls) -> dict:
         cfg = super().default_config()
         cfg.update(CONFIG)
-        cfg.update({"policy_frequency": 5, "duration": 20,
+        # MARL_CAVs' KinematicObservation defaults: see_behind, no clip, its ranges; road.vehicles only
+        obs = {"type": "Kinematics", "see_behind": True, "clip": False, "include_obstacles": False,
+               "features_range": {"x": [-150, 150], "y": [-12, 12], "vx": [-45, 45], "vy": [-45, 45]}}
+        cfg.update({"policy_frequency": 5, "duration": 20, "observation": obs,
                     "action": {"type": "DiscreteMetaAction", "target_speeds": [10, 15, 20, 25, 30]}})
         return cfg
 

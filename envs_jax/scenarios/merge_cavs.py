@@ -66,6 +66,10 @@ DENSITIES = {1: (1, 3, 1, 3), 2: (2, 4, 2, 4), 3: (4, 6, 3, 5)}
 DENSITY_NAMES = {"easy": 1, "medium": 2, "hard": 3}
 # MARL_CAVs' IDMVehicle constants that differ from highway-env's
 CAVS_IDM = IDMParams(lane_change_min_acc_gain=0.1, lane_change_max_braking_imposed=9.0)
+# MARL_CAVs' KinematicObservation: vehicles behind seen, no obstacles, its fixed ranges (5 and 1.5 times its top
+# speed of 30 m/s, y +-12 m), not clipped
+OBSERVATION = {"type": "Kinematics", "see_behind": True, "clip": False, "include_obstacles": False,
+               "features_range": {"x": [-150.0, 150.0], "y": [-12.0, 12.0], "vx": [-45.0, 45.0], "vy": [-45.0, 45.0]}}
 
 
 @struct.dataclass
@@ -258,14 +262,14 @@ def make_merge_cavs(name: str = NAME, env_config: dict | None = None, **override
 
     Keys: ``traffic_density`` (1, 2, 3 or ``"easy"``, ``"medium"``, ``"hard"``), ``COLLISION_REWARD``,
     ``HIGH_SPEED_REWARD``, ``HEADWAY_COST``, ``HEADWAY_TIME``, ``MERGING_LANE_COST``, ``reward_speed_range``,
-    ``duration`` (s), the frequencies, ``observation`` and ``action`` (highway-env's forms; default target speeds
-    10..30 m/s in 5 steps), ``safety_guarantee`` and ``action_masking`` (False only: MARL_CAVs' safety supervisor
+    ``duration`` (s), the frequencies, ``observation`` and ``action`` (highway-env's forms; defaults MARL_CAVs'
+    ``Kinematics`` options :data:`OBSERVATION` and target speeds 10..30 m/s in 5 steps), ``safety_guarantee`` and ``action_masking`` (False only: MARL_CAVs' safety supervisor
     and action masks belong to its learning method), plus ``num_slots`` (>= the density's most CAVs + most HDVs),
     ``collision_cost`` and ``idm`` (default MARL_CAVs' driver constants; a dict changes some of them). Unknown keys
     and bad values raise ``ValueError`` naming them and what is allowed.
     """
     cfg = dict(DEFAULTS)
-    cfg["observation"] = {"type": "Kinematics"}
+    cfg["observation"] = dict(OBSERVATION)
     cfg["action"] = {"type": "DiscreteMetaAction", "target_speeds": list(np.linspace(10, 30, 5))}
     given = H.config_given(name, cfg, OWN_KEYS, env_config, overrides)  # connected lanes: none on this road
     cfg.update(given)
