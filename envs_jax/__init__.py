@@ -13,6 +13,7 @@ from envs_jax.scenarios.highway import make_highway
 from envs_jax.scenarios.intersection import Intersection
 from envs_jax.scenarios.intersection_traffic import make_intersection
 from envs_jax.scenarios.merge import Merge
+from envs_jax.scenarios.merge_cavs import make_merge_cavs
 from envs_jax.scenarios.merge_traffic import make_merge
 from envs_jax.scenarios.racetrack import Racetrack
 from envs_jax.scenarios.racetrack_traffic import make_racetrack
@@ -27,6 +28,7 @@ register("racetrack", Racetrack)
 register_task("highway-v0", make_highway)
 register_task("highway-fast-v0", make_highway)
 register_task("merge-v0", make_merge)
+register_task("merge-cavs-v0", make_merge_cavs)
 register_task("roundabout-v0", make_roundabout)
 register_task("racetrack-v0", make_racetrack)
 register_task("intersection-v0", make_intersection)

@@ -10,7 +10,7 @@ from __future__ import annotations
 import flax.struct
 import jax
 
-__all__ = ["Transition"]
+__all__ = ["MaskedTransition", "Transition"]
 
 
 @flax.struct.dataclass
@@ -22,3 +22,8 @@ class Transition:
     next_obs: jax.Array  # [n_agents, obs_dim] (pre-reset observation at episode ends)
     terminated: jax.Array  # bool [n_agents], per-agent terminal flag (not the time limit)
     truncated: jax.Array  # bool [], time limit reached
+
+
+@flax.struct.dataclass
+class MaskedTransition(Transition):
+    active: jax.Array  # bool [n_agents]: the agent drives in this episode (absent agents are left out of its loss)

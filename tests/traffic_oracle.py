@@ -1,5 +1,5 @@
-"""highway-env oracle of the traffic tasks (``highway-v0``, ``highway-fast-v0``, ``merge-v0``, ``roundabout-v0``)
-with K controlled vehicles.
+"""highway-env oracle of the traffic tasks (``highway-v0``, ``highway-fast-v0``, ``merge-v0``, ``roundabout-v0``,
+and ``merge-cavs-v0`` through tests/merge_cavs_oracle.py) with K controlled vehicles.
 
 highway-env runs its own task (its ``HighwayEnv`` / ``HighwayEnvFast`` classes, its
 ``IDMVehicle`` drivers, its ``road.act`` / ``road.step`` order) from an initial state
@@ -25,9 +25,10 @@ from highway_env.envs.highway_env import HighwayEnv, HighwayEnvFast
 from highway_env.envs.merge_env import MergeEnv
 from highway_env.envs.roundabout_env import RoundaboutEnv
 from highway_env.vehicle.behavior import IDMVehicle
+from tests.merge_cavs_oracle import MergeCavsOracle
 
 CLASSES = {"highway-v0": HighwayEnv, "highway-fast-v0": HighwayEnvFast, "merge-v0": MergeEnv,
-           "roundabout-v0": RoundaboutEnv}
+           "roundabout-v0": RoundaboutEnv, "merge-cavs-v0": MergeCavsOracle}
 
 
 def multi_agent_config(controlled: int, observation: dict, action: dict, **extra) -> dict:

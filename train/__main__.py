@@ -72,12 +72,13 @@ def parse_args(argv=None) -> argparse.Namespace:
     p = argparse.ArgumentParser(prog="python -m train", description=__doc__.split("\n\n")[1],
                                 formatter_class=argparse.RawDescriptionHelpFormatter, epilog=EPILOG)
     p.add_argument("--scenario", choices=list(SCENARIOS), default=None,
-                   help="driving scenario (default merge): merge, roundabout and highway (highway-v0 with K "
-                        "controlled vehicles) have discrete actions, intersection and racetrack continuous ones; the "
-                        "algorithm must match")
+                   help="driving scenario (default merge): merge, roundabout, highway (highway-v0 with K "
+                        "controlled vehicles) and merge-cavs (MARL_CAVs' merge, up to K CAVs) have discrete actions, "
+                        "intersection and racetrack continuous ones; the algorithm must match")
     p.add_argument("--algo", choices=list(ALGOS), default=None, help=_algos_help() + " (default csq)")
     p.add_argument("--agents", type=int, default=None, metavar="K",
-                   help="controlled agents (default: the scenario's, 2; --scenario highway takes 2..8, CSQ up to 4)")
+                   help="controlled agents (default: the scenario's, 2; --scenario highway takes 2..8, CSQ up to 4; "
+                        "merge-cavs 3 or 4, the most CAVs of its easy or medium traffic)")
     p.add_argument("--hierarchy", default=None, metavar="LEVELS",
                    help="who decides before whom (CSQ, SQ): levels of agent indices, '|' between levels and ',' "
                         "within one, e.g. '0|1|2' (vertical chain, the default), '0,1|2' (two leaders), '0,1,2' "

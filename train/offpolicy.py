@@ -66,8 +66,9 @@ def make_offpolicy_train(config: dict, env, agent) -> Trainer:
         obs, env_state, reward, cost, done, info = jax.vmap(wrapped.step, in_axes=(0, 0, 0, None))(
             jax.random.split(k_env, E), rs.env_state, actions, params)
         next_obs = jnp.where(done[:, None, None], info["terminal_obs"], obs)
+        extra = {"active": info["alive"]} if "active" in agent.Transition.__dataclass_fields__ else {}
         tr = agent.Transition(obs=rs.obs, action=actions, reward=reward, cost=cost, next_obs=next_obs,
-                              terminated=info["terminated"], truncated=info["truncated"])
+                              terminated=info["terminated"], truncated=info["truncated"], **extra)
         buf = buffers.add(rs.buffer, tr)
 
         def learn(agent_state):

@@ -56,13 +56,20 @@ class Trainer(NamedTuple):
 
 def make_env(scenario: str, agents: int | None = None):
     """``(env, auto-reset env, params)`` from :mod:`envs_jax`. ``highway`` is highway-v0 with ``agents``
-    controlled vehicles (default 2), its observations flattened per agent (:mod:`envs_jax.traffic_autoreset`)."""
+    controlled vehicles (default 2), ``merge-cavs`` MARL_CAVs' merge with at most ``agents`` CAVs (3: easy traffic,
+    the default; 4: medium), their observations flattened per agent (:mod:`envs_jax.traffic_autoreset`)."""
     import envs_jax
 
-    if scenario == "highway":
+    if scenario in ("highway", "merge-cavs"):
         from envs_jax.traffic_autoreset import TrafficAutoResetWrapper
 
-        env = envs_jax.make("highway-v0", controlled_vehicles=2 if agents is None else int(agents))
+        if scenario == "highway":
+            env = envs_jax.make("highway-v0", controlled_vehicles=2 if agents is None else int(agents))
+        else:
+            density = {3: 1, 4: 2}.get(3 if agents is None else int(agents))
+            if density is None:
+                raise ValueError(f"merge-cavs takes 3 agents (easy traffic) or 4 (medium), got {agents}")
+            env = envs_jax.make("merge-cavs-v0", traffic_density=density)
         return env, TrafficAutoResetWrapper(env), env.default_params
     env = envs_jax.make(scenario)
     return env, envs_jax.AutoResetWrapper(env), env.default_params

@@ -44,9 +44,9 @@ from jaxsmarl.algos.csq_config import CSQConfig
 from jaxsmarl.exploration import linear_decay
 from jaxsmarl.hierarchy import agent_order, is_chain
 from jaxsmarl.stackelberg import stackelberg_equilibrium
-from jaxsmarl.transition import Transition
+from jaxsmarl.transition import MaskedTransition, Transition
 
-__all__ = ["CSQConfig", "CSQState", "CSQAgent"]
+__all__ = ["CSQAgent", "CSQConfig", "CSQState", "MaskedTransition", "Transition"]
 
 Q, G = 0, 1  # kind axis of the stacked critics
 
@@ -68,6 +68,7 @@ class CSQAgent:
         self.config = config
         self.module = networks.JointActionMLP(hidden=tuple(config.hidden_sizes), init_scheme=config.init)
         self.optimizer = optax.adam(config.lr)
+        self.Transition = MaskedTransition if config.absent_agents else Transition
 
     # ---------------------------------------------------------------------------------------------
     def init(self, key: jax.Array) -> CSQState:
@@ -89,9 +90,12 @@ class CSQAgent:
     def transition_example(self) -> Transition:
         c = self.config
         n = c.n_agents
-        return Transition(obs=jnp.zeros((n, c.obs_dim)), action=jnp.zeros((n,), jnp.int32), reward=jnp.zeros((n,)),
-                          cost=jnp.zeros((n,)), next_obs=jnp.zeros((n, c.obs_dim)),
-                          terminated=jnp.zeros((n,), bool), truncated=jnp.zeros((), bool))
+        fields = {"obs": jnp.zeros((n, c.obs_dim)), "action": jnp.zeros((n,), jnp.int32), "reward": jnp.zeros((n,)),
+                  "cost": jnp.zeros((n,)), "next_obs": jnp.zeros((n, c.obs_dim)),
+                  "terminated": jnp.zeros((n,), bool), "truncated": jnp.zeros((), bool)}
+        if c.absent_agents:
+            fields["active"] = jnp.ones((n,), bool)
+        return self.Transition(**fields)
 
     # ---------------------------------------------------------------------------------------------
     def values(self, params, obs: jax.Array) -> jax.Array:
@@ -233,6 +237,11 @@ class CSQAgent:
 
     def loss(self, params, batch: Transition, targets: jax.Array):
         pred = networks.values_at(params, batch.obs, batch.action, self.config.num_actions)
+        if self.config.absent_agents:  # means over each agent's own present transitions
+            w = batch.active.astype(pred.dtype)[..., None]  # [B, n, 1]
+            count = jnp.maximum(jnp.sum(w, axis=0), 1.0)
+            per_net = jnp.sum(w * (pred - jax.lax.stop_gradient(targets)) ** 2, axis=0) / count
+            return jnp.sum(per_net), (per_net, jnp.sum(w * pred, axis=0) / count)
         per_net = jnp.mean((pred - jax.lax.stop_gradient(targets)) ** 2, axis=0)  # [n, 2]
         return jnp.sum(per_net), (per_net, jnp.mean(pred, axis=0))
 

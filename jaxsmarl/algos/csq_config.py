@@ -23,6 +23,9 @@ class CSQConfig:
 
     num_actions: tuple[int, ...] = (5, 5)  # per agent, from the environment
     obs_dim: int = 8  # from the environment
+    # from the environment: True when it flags agents absent from an episode (info["alive"], stored as the
+    # transitions' `active`); each agent's critic losses then average over the transitions where it drives
+    absent_agents: bool = False
     updates_per_step: int = option(1, "gradient updates per loop iteration (authors: 1 per environment step)",
                                    Int(1))
     lr: float = option(1e-3, "Adam learning rate of every reward and cost critic (authors' lr_critic)",

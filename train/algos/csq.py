@@ -53,7 +53,8 @@ def make_agent(config: dict, env):
                          "discrete actions; use merge, roundabout or highway")
     options = {k: tuple(config[k]) if isinstance(config[k], list) else config[k] for k in DEFAULTS}
     return CSQAgent(CSQConfig(num_actions=(int(env.num_actions),) * env.num_agents,
-                              obs_dim=math.prod(env.obs_shape[1:]), **options))
+                              obs_dim=math.prod(env.obs_shape[1:]),
+                              absent_agents=bool(getattr(env, "has_absent_agents", False)), **options))
 
 
 register(
