@@ -29,7 +29,6 @@ agents (MARL_CAVs' metric).
 
 from __future__ import annotations
 
-import dataclasses
 from typing import Any
 
 import jax
@@ -42,7 +41,7 @@ from envs_jax import lanes as L
 from envs_jax import vehicle as Veh
 from envs_jax.idm import IDMParams
 from envs_jax.road import RoadNetwork
-from envs_jax.scenarios import highway as H
+from envs_jax.scenarios import config_values as CV
 from envs_jax.traffic_env import Task, TrafficEnv, TrafficParams
 
 C, S, N = L.LINE_CONTINUOUS_LINE, L.LINE_STRIPED, L.LINE_NONE
@@ -271,7 +270,7 @@ def make_merge_cavs(name: str = NAME, env_config: dict | None = None, **override
     cfg = dict(DEFAULTS)
     cfg["observation"] = dict(OBSERVATION)
     cfg["action"] = {"type": "DiscreteMetaAction", "target_speeds": list(np.linspace(10, 30, 5))}
-    given = H.config_given(name, cfg, OWN_KEYS, env_config, overrides)  # connected lanes: none on this road
+    given = CV.config_given(name, cfg, OWN_KEYS, env_config, overrides)  # connected lanes: none on this road
     cfg.update(given)
 
     density = density_of(name, cfg["traffic_density"])
@@ -279,36 +278,26 @@ def make_merge_cavs(name: str = NAME, env_config: dict | None = None, **override
         if cfg[key] is not False:
             raise ValueError(f"{name}: {key} must be False: MARL_CAVs' safety supervisor and action masks are "
                              f"part of its learning method, not of the environment; got {cfg[key]!r}")
-    sim = H._int(name, "simulation_frequency", cfg["simulation_frequency"], 1)
-    pol = H._int(name, "policy_frequency", cfg["policy_frequency"], 1, sim)
+    sim = CV.int_value(name, "simulation_frequency", cfg["simulation_frequency"], 1)
+    pol = CV.int_value(name, "policy_frequency", cfg["policy_frequency"], 1, sim)
     _, hi_c, _, hi_h = DENSITIES[density]
     total = hi_c + hi_h
-    num_slots = H._int(name, "num_slots", cfg.get("num_slots", total), total)
-    obs_cfg = H._observation(name, cfg["observation"])
-    action = H._action(name, cfg["action"])
-    rsr = cfg["reward_speed_range"]
-    if np.shape(rsr) != (2,) or not float(rsr[1]) != float(rsr[0]):
-        raise ValueError(f"{name}: reward_speed_range must be [low, high] with low != high, got {rsr!r}")
-    idm = cfg.get("idm")
-    if idm is None:
-        idm = CAVS_IDM
-    elif isinstance(idm, dict):
-        idm = H._idm(name, {**{f.name: getattr(CAVS_IDM, f.name) for f in dataclasses.fields(IDMParams)}, **idm})
-    else:
-        idm = H._idm(name, idm)
-    num = lambda key, **kw: H._number(name, key, cfg[key], **kw)
+    num_slots = CV.int_value(name, "num_slots", cfg.get("num_slots", total), total)
+    obs_cfg = CV.observation_config(name, cfg["observation"])
+    action = CV.meta_action_config(name, cfg["action"])
+    rsr = CV.speed_range(name, cfg["reward_speed_range"])
+    idm = CV.idm_params(name, cfg.get("idm"), CAVS_IDM)
+    num = lambda key, **kw: CV.number_value(name, key, cfg[key], **kw)
     params = MergeCavsParams(
         duration=num("duration", positive=True),
-        collision_cost=H._number(name, "collision_cost", cfg.get("collision_cost", 5.0)),
+        collision_cost=CV.cost_value(name, "collision_cost", cfg.get("collision_cost", 5.0)),
         target_speeds=np.asarray(action["target_speeds"], np.float64),
         idm=idm,
         obstacles=None,
         collision_reward=num("COLLISION_REWARD"), high_speed_reward=num("HIGH_SPEED_REWARD"),
         headway_cost=num("HEADWAY_COST"), headway_time=num("HEADWAY_TIME", positive=True),
-        merging_lane_cost=num("MERGING_LANE_COST"), reward_speed_range=(float(rsr[0]), float(rsr[1])),
+        merging_lane_cost=num("MERGING_LANE_COST"), reward_speed_range=rsr,
     )
-    if params.collision_cost < 0:
-        raise ValueError(f"{name}: collision_cost must be >= 0, got {params.collision_cost}")
     task = MergeCavsTask(density, num_slots, sim, pol, obs_cfg)
     params = params.replace(obstacles=np.array([[task.obstacle[0], task.obstacle[1], 0.0, OBSTACLE_SIZE,
                                                  OBSTACLE_SIZE]]))
