@@ -6,6 +6,11 @@ os.environ.setdefault("XLA_FLAGS", "--xla_force_host_platform_device_count=1")
 import jax
 import pytest
 
+# Start the backend now, with the flags above: a test that runs the training command in-process would otherwise
+# start it with the command's own XLA flags, and every later test in that worker would compile differently
+# (the pinned bit-identical runs then differ in the last bits, depending on which tests ran first).
+jax.devices()
+
 
 @pytest.fixture
 def x64():
