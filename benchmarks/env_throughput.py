@@ -39,8 +39,8 @@ import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
-import envs_jax  # noqa: E402
 import baseline_sims  # noqa: E402
+import envs_jax  # noqa: E402
 from envs_jax.wrappers import AutoResetWrapper, random_actions  # noqa: E402
 
 
@@ -282,7 +282,8 @@ def main(argv=None):
     parser.add_argument("--envpool-seconds", type=float, default=6.0, help="time EnvPool is stepped per configuration")
     parser.add_argument("--repeats", type=int, default=3, help="timed repeats per point (median)")
     parser.add_argument("--highway-seconds", type=float, default=10.0, help="time highway-env is stepped")
-    parser.add_argument("--baseline", default=None, help="an earlier JSON of this script, printed beside the new figures")
+    parser.add_argument("--baseline", default=None,
+                        help="an earlier JSON of this script, printed beside the new figures")
     parser.add_argument("--quick", action="store_true", help="envs 1, 256, 4096 and fewer steps")
     parser.add_argument("--out", default=os.path.join(os.path.dirname(__file__), "results", "env_throughput.json"))
     args = parser.parse_args(argv)

@@ -139,7 +139,8 @@ def main(argv=None) -> int:
         if a.only in (None, "sweeps"):
             res["sweeps"] = sweeps(tmp, a.steps, a.seeds, a.configs)
             r = res["sweeps"]
-            print(f"sweeps: {a.configs} sequential runs / one sweep: wall {r['wall_ratio_sequential_over_sweep']:.2f}x, "
+            print(f"sweeps: {a.configs} sequential runs / one sweep: "
+                  f"wall {r['wall_ratio_sequential_over_sweep']:.2f}x, "
                   f"training {r['train_ratio_sequential_over_sweep']:.2f}x (identical episodes: "
                   f"{r['episodes_identical']})", flush=True)
     finally:

@@ -44,6 +44,7 @@ def loop_solver(q1, q2, g1, g2, d1, d2):
                 if g2b[a_l][a_f] <= d2[b] and (best < 0 or q2b[a_l][a_f] > best_q):
                     best, best_q = a_f, q2b[a_l][a_f]
             if best < 0:  # nothing feasible: lowest cost, then highest Q
+                best_key = None  # set on the first action (best < 0 short-circuits the comparison)
                 for a_f in range(N_ACTIONS):
                     key = (-g2b[a_l][a_f], q2b[a_l][a_f])
                     if best < 0 or key > best_key:

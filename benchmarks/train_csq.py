@@ -77,7 +77,8 @@ def main(argv=None) -> int:
     for s in a.seeds:
         r = bench(s, a.steps, a.chunk_steps, a.scenario, a.algo)
         results.append(r)
-        print(f"{s:>5} {r['compile_s']:>9.1f} {r['train_s']:>8.1f} {r['wall_s']:>7.1f} {r['steps_per_s_per_seed']:>12,.0f} "
+        print(f"{s:>5} {r['compile_s']:>9.1f} {r['train_s']:>8.1f} {r['wall_s']:>7.1f} "
+              f"{r['steps_per_s_per_seed']:>12,.0f} "
               f"{r['steps_per_s_all_seeds']:>11,.0f} {r['load_avg_1m'][0]:>5.1f}->{r['load_avg_1m'][1]:<5.1f}",
               flush=True)
     if a.json:

@@ -25,7 +25,6 @@ sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
 import jax  # noqa: E402
-import jax.numpy as jnp  # noqa: E402
 
 from train.config import load_config  # noqa: E402
 from train.parallel import seed_parallel, seed_sharding  # noqa: E402
@@ -68,7 +67,8 @@ def profile_update(seeds: int, scenario: str, algo: str, n: int = 300) -> dict:
     jax.block_until_ready(f(st, batch))
     dt = time.perf_counter() - t
     flops = update_flops(agent)
-    return {"seeds": seeds, "updates_per_s_per_seed": round(n / dt, 1), "updates_per_s_all_seeds": round(seeds * n / dt, 1),
+    return {"seeds": seeds, "updates_per_s_per_seed": round(n / dt, 1),
+            "updates_per_s_all_seeds": round(seeds * n / dt, 1),
             "mflop_per_update": round(flops / 1e6, 1), "gflop_per_s": round(seeds * n * flops / dt / 1e9, 1)}
 
 

@@ -1,6 +1,6 @@
 """Training speed of MAPPO-L and MACPO: environment steps per second during training, compilation apart.
 
-    python benchmarks/train_onpolicy.py                       # both algorithms, intersection and racetrack, 1 and 8 seeds
+    python benchmarks/train_onpolicy.py    # both algorithms, intersection and racetrack, 1 and 8 seeds
     python benchmarks/train_onpolicy.py --algos macpo --scenarios racetrack --seeds 1 --cycles 2
 
 Uses each scenario's configuration (``train/configs/<scenario>_<algo>.json``: num_envs x rollout_length samples per

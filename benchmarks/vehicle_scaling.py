@@ -48,7 +48,8 @@ def main(argv=None):
     parser.add_argument("--env-steps", type=int, default=256,
                         help="environment steps per measurement (T = max(4, this / N))")
     parser.add_argument("--repeats", type=int, default=5, help="timed rounds over all points (median)")
-    parser.add_argument("--envpool-envs", type=int, default=2, help="EnvPool environments (synchronous, threads = cores)")
+    parser.add_argument("--envpool-envs", type=int, default=2,
+                        help="EnvPool environments (synchronous, threads = cores)")
     parser.add_argument("--envpool-seconds", type=float, default=2.0,
                         help="time EnvPool is stepped per point and round")
     parser.add_argument("--out", default=os.path.join(os.path.dirname(__file__), "results", "vehicle_scaling.json"))

@@ -36,8 +36,15 @@ import numpy as np
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), os.pardir))
 
 import envs_jax  # noqa: E402
-from envs_jax.views import (AgentSpec, BatchedPettingZooDrivingEnv, GymnasiumDrivingEnv,  # noqa: E402
-                            GymnasiumVectorDrivingEnv, JaxMARLDrivingEnv, PettingZooDrivingEnv, idle_policy)
+from envs_jax.views import (  # noqa: E402
+    AgentSpec,
+    BatchedPettingZooDrivingEnv,
+    GymnasiumDrivingEnv,
+    GymnasiumVectorDrivingEnv,
+    JaxMARLDrivingEnv,
+    PettingZooDrivingEnv,
+    idle_policy,
+)
 
 
 def timed(fn, steps: int, repeats: int) -> float:

@@ -34,4 +34,5 @@ register_task("racetrack-v0", make_racetrack)
 register_task("intersection-v0", make_intersection)
 register_task("intersection-multi-agent-v0", make_intersection)
 
-__all__ = ["make", "available_scenarios", "available_tasks", "register", "register_task", "DrivingEnv", "EnvParams", "EnvState", "AutoResetWrapper", "rollout"]
+__all__ = ["make", "available_scenarios", "available_tasks", "register", "register_task", "DrivingEnv", "EnvParams",
+           "EnvState", "AutoResetWrapper", "rollout"]

@@ -18,8 +18,18 @@ import numpy as np
 
 from envs_jax import sparse
 from envs_jax.all_lanes import distance_with_heading_all, first_argmin
-from envs_jax.lanes import (CIRCULAR, COLUMN, FIELDS, SINE, LaneTable, distance_from_coords, float_dtype, linear_local,
-                            sine_offset, wrap_to_pi)
+from envs_jax.lanes import (
+    CIRCULAR,
+    COLUMN,
+    FIELDS,
+    SINE,
+    LaneTable,
+    distance_from_coords,
+    float_dtype,
+    linear_local,
+    sine_offset,
+    wrap_to_pi,
+)
 
 __all__ = ["locate", "circle_coords", "lane_coords", "sine_lower_bound", "SMALL_BATCH", "BOUND_SLACK_ABS",
            "BOUND_SLACK_REL"]
@@ -190,7 +200,8 @@ def locate(lanes: LaneTable, px, py, heading):
     (``sparse.packed_rows``); elsewhere no sine lane can be the closest or tie with it.
     Under ``vmap`` (custom rule) the whole batch is flattened and the lanes are laid out
     major; with at most ``SMALL_BATCH`` poses in all (one to four envs), where the cost is
-    the number of XLA ops rather than arithmetic, the all-lane search runs instead. Shapes: ``px, py, heading`` ``[...]``; returns ``lane, s, lat`` ``[...]`` and
+    the number of XLA ops rather than arithmetic, the all-lane search runs instead. Shapes: ``px, py, heading``
+    ``[...]``; returns ``lane, s, lat`` ``[...]`` and
     ``circles`` (``[..., C]`` each).
     """
     px, py, heading = jnp.broadcast_arrays(jnp.asarray(px), jnp.asarray(py), jnp.asarray(heading))

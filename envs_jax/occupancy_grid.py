@@ -71,7 +71,8 @@ class OccupancyGridConfig:
         if "grid_step" in out:
             st = np.asarray(out["grid_step"], dtype=np.float64)
             if st.shape != (2,) or not np.all(np.isfinite(st)) or not np.all(st > 0):
-                raise ValueError(f"{where}: grid_step must be [step_x, step_y] with steps > 0, got {out['grid_step']!r}")
+                raise ValueError(f"{where}: grid_step must be [step_x, step_y] with steps > 0, "
+                                 f"got {out['grid_step']!r}")
             out["grid_step"] = tuple(float(v) for v in st)
         check_flags(out, ("absolute", "align_to_vehicle_axes", "clip", "as_image"), where)
         if out.get("absolute"):

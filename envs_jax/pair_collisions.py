@@ -20,7 +20,8 @@ from envs_jax import collision
 from envs_jax import vehicle as Veh
 from envs_jax.sparse import sparse_map
 
-SAT_ROWS_PER_VEHICLE = 0.25  # separating-axis rows packed per vehicle slot and env under vmap (more run in extra chunks)
+# Separating-axis rows packed per vehicle slot and env under vmap (more run in extra chunks).
+SAT_ROWS_PER_VEHICLE = 0.25
 
 
 def pair_table(n_slots: int, n_obstacles: int, check_collisions):

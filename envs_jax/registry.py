@@ -47,7 +47,8 @@ def available_tasks() -> list[str]:
 
 def _scenario(name: str, action_mode: str | None = None) -> Scenario:
     if name not in _SCENARIOS:
-        raise ValueError(f"unknown scenario {name!r}; available: {', '.join(available_scenarios() + available_tasks())}")
+        raise ValueError(f"unknown scenario {name!r}; "
+                         f"available: {', '.join(available_scenarios() + available_tasks())}")
     key = (name, action_mode)
     if key not in _CACHE:
         if action_mode is None:

@@ -78,7 +78,8 @@ def _all_rows(vfn, mask, *args):
 def _rank(mask, block: int = 32):
     """``cumsum(mask) - 1`` for a boolean ``[n]`` mask, computed with bit counts.
 
-    XLA's CPU ``cumsum`` is a slow reduce-window; here each block of 32 flags becomes one ``uint32`` (one reduction), the
+    XLA's CPU ``cumsum`` is a slow reduce-window; here each block of 32 flags becomes one ``uint32`` (one reduction),
+    the
     blocks' counts are scanned (32 times fewer elements) and the rank within a block
     is the population count of the lower bits.
     """

@@ -2,7 +2,8 @@
 
 With samples as rows, reverse-mode autodiff of ``x @ W`` computes the weight gradient as ``x^T @ g``, a product
 that contracts the sample axis of both operands in first position; XLA:CPU hands that layout to a generic kernel
-that runs several times slower than a row-major ``[m, k] @ [k, n]`` product of the same size (YNNPACK takes only the latter).
+that runs several times slower than a row-major ``[m, k] @ [k, n]`` product of the same size (YNNPACK takes only
+the latter).
 With samples as columns every product of a dense layer can be made row-major: the forward pass ``W^T @ x`` (the
 small kernel transposed explicitly), the input gradient ``W @ g`` and the weight gradient ``x @ g^T``, which
 contracts the last axes of both operands (~as fast as a forward product). :func:`dense` is that layer with its

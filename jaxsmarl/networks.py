@@ -6,7 +6,8 @@ output) on ``concat(o_i, onehot(a1), onehot(a2))`` where ``o_i`` is the agent's 
 
 The networks of all agents and kinds are stored as ONE parameter pytree with leading axes
 ``[n_agents, n_kinds]`` (e.g. ``[2, 2]`` = {leader, follower} x {Q, G}); evaluation contracts over those axes with
-batched matrix products (einsums over the stacked weights), which XLA:CPU runs much faster than nested vmaps. :func:`joint_values` evaluates every joint action
+batched matrix products (einsums over the stacked weights), which XLA:CPU runs much faster than nested vmaps.
+:func:`joint_values` evaluates every joint action
 ``A1 x ... x Ak`` in one forward pass; :func:`values_at` evaluates one given joint action.
 
 MADDPG's critics (continuous actions) are the same networks on ``concat(s, a1, a2)``: :func:`critic_values` (the

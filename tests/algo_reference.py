@@ -75,8 +75,8 @@ def _leaves(tree, prefix: str, every: int = 3) -> dict:
 def short_run(name: str, layout_name: str) -> dict:
     """One seed of run ``name`` in layout ``layout_name``: every episode record, the learner's metrics and some
     parameter leaves of the final state."""
-    from train.config import load_config
     from train.build import make_train
+    from train.config import load_config
     from train.trainer import seed_keys
 
     scenario, algo, overrides = CONFIGS[name]

@@ -71,7 +71,8 @@ def help_texts() -> dict:
 def snapshot() -> dict:
     from train.config import ALGOS, DEFAULTS, HELP, defaults_for, help_for
 
-    return {"python": f"{sys.version_info[0]}.{sys.version_info[1]}", "configs": resolved_configs(), "help": help_texts(),
+    return {"python": f"{sys.version_info[0]}.{sys.version_info[1]}", "configs": resolved_configs(),
+            "help": help_texts(),
             "defaults": {a: defaults_for(a) for a in ALGOS}, "key_help": {a: help_for(a) for a in ALGOS},
             "DEFAULTS": DEFAULTS, "HELP": HELP}
 

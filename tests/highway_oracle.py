@@ -29,7 +29,6 @@ from __future__ import annotations
 import functools
 
 import numpy as np
-
 from highway_env import utils
 from highway_env.envs.intersection_env import ContinuousIntersectionEnv
 from highway_env.envs.merge_env import MergeEnv
@@ -633,7 +632,8 @@ def run_oracle(scenario: str, actions, seed: int | None = None, **kwargs) -> dic
         return np.asarray(values, dtype=dtype).reshape(shape)
 
     for key, values in out_steps.items():
-        result[key] = as_array(key, values, (length, 2) if key in ("reward", "cost", "terminated", "arrived", "arrived_flag") else (length,))
+        per_agent = key in ("reward", "cost", "terminated", "arrived", "arrived_flag")
+        result[key] = as_array(key, values, (length, 2) if per_agent else (length,))
     for key, values in states.items():
         result[key] = as_array(key, values, (length + 1, 2))
     for key, values in subs.items():

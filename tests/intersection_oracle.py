@@ -16,7 +16,6 @@ highway-env is imported here only; it must never be imported outside ``tests/``.
 from __future__ import annotations
 
 import numpy as np
-
 from highway_env.envs.intersection_env import IntersectionEnv, MultiAgentIntersectionEnv
 from highway_env.vehicle.behavior import IDMVehicle
 
@@ -141,7 +140,8 @@ def run_oracle(k: int, attempts_reset: list, z_ego, destination, step_attempts: 
             frames.append(snapshot())
 
         env.road.step = step_and_record
-        out = {"init": snapshot(), "init_spawns": list(env.spawn_log), "obs": [np.asarray(env.observation_type.observe())],
+        out = {"init": snapshot(), "init_spawns": list(env.spawn_log),
+               "obs": [np.asarray(env.observation_type.observe())],
                "reward": [], "terminated": [], "env_terminated": [], "truncated": [], "after_step": [],
                "env_reward": []}
         for a in np.asarray(actions):

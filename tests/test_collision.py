@@ -67,7 +67,8 @@ def test_matches_highway_env_on_random_pairs(x64):
     for i in range(n):
         e_inter, e_will, e_t = hutils.are_polygons_intersecting(
             poly(xa[i], ya[i], ha[i]), poly(0, 0, hb[i]),
-            va[i] * np.array([np.cos(ha[i]), np.sin(ha[i])]) * dt, vb[i] * np.array([np.cos(hb[i]), np.sin(hb[i])]) * dt)
+            va[i] * np.array([np.cos(ha[i]), np.sin(ha[i])]) * dt,
+            vb[i] * np.array([np.cos(hb[i]), np.sin(hb[i])]) * dt)
         assert bool(inter[i]) == e_inter and bool(will[i]) == e_will
         if e_will:
             np.testing.assert_allclose([tx[i], ty[i]], e_t, atol=1e-9)

@@ -105,8 +105,8 @@ def reference_direction(g, b, hg, hb, c, delta, eps=1e-8):
         proj = lambda x, L: max(L[0], min(L[1], x))
         lam_a = proj(math.sqrt(A / B), LA)
         lam_b = proj(math.sqrt(q / (2 * delta)), LB)
-        f_a = lambda l: -0.5 * (A / (eps + l) + B * l) - r * c / (eps + s)
-        f_b = lambda l: -0.5 * (q / (eps + l) + 2 * delta * l)
+        f_a = lambda lam: -0.5 * (A / (eps + lam) + B * lam) - r * c / (eps + s)
+        f_b = lambda lam: -0.5 * (q / (eps + lam) + 2 * delta * lam)
         lam = lam_a if f_a(lam_a) >= f_b(lam_b) else lam_b
         nu = max(0, lam * c - r) / (eps + s)
     else:

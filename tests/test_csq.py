@@ -126,7 +126,8 @@ def test_td_targets_match_hand_computation(setup):
             np.testing.assert_allclose(y[b, i], [exp_q, exp_g], rtol=1e-5, atol=1e-5)
 
 
-@pytest.mark.parametrize("d, infeasible", [((0.0, 0.0), "min_cost"), ((-0.05, 0.05), "argmax"), ((5.0, 5.0), "min_cost")])
+@pytest.mark.parametrize("d, infeasible",
+                         [((0.0, 0.0), "min_cost"), ((-0.05, 0.05), "argmax"), ((5.0, 5.0), "min_cost")])
 def test_follower_first_target_equilibrium_equals_full_grid(d, infeasible):
     """solve_equilibrium (follower grid + leader at (a1, BR(a1)) only) == p14 on the full joint-value grid."""
     agent = _agent(cost_threshold=d, infeasible=infeasible)

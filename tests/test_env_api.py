@@ -185,7 +185,8 @@ def test_continuous_action_ranges_are_params():
 
 def test_auto_reset_records_offroad_and_distance_driven():
     """Racetrack with zero steering and zero acceleration: both cars drive straight at 10 m/s off the first curve
-    (docs/scenarios.md, racetrack: off-road at step 21, x=119). The distance is the path length: 10 m/s x 0.2 s per step."""
+    (docs/scenarios.md, racetrack: off-road at step 21, x=119). The distance is the path length: 10 m/s x 0.2 s per
+    step."""
     env = envs_jax.make("racetrack")
     w = envs_jax.AutoResetWrapper(env)
     params = env.default_params

@@ -63,10 +63,12 @@ def test_closest_lane_matches_highway_env(name, x64):
     net = oracle.road.network
     number = {n: i for i, n in enumerate(env.road.lane_names)}
     rng = np.random.default_rng(1)
-    lo, hi = (np.array([-20, -10]), np.array([480, 25])) if name == "merge" else (np.array([-180, -180]), np.array([180, 180]))
+    lo, hi = ((np.array([-20, -10]), np.array([480, 25])) if name == "merge"
+              else (np.array([-180, -180]), np.array([180, 180])))
     pts = rng.uniform(lo, hi, size=(400, 2))
     heads = rng.uniform(-4, 4, size=400)
-    ours = np.asarray(jax.vmap(env.road.closest_lane)(jnp.asarray(pts[:, 0]), jnp.asarray(pts[:, 1]), jnp.asarray(heads)))
+    ours = np.asarray(jax.vmap(env.road.closest_lane)(jnp.asarray(pts[:, 0]), jnp.asarray(pts[:, 1]),
+                                                      jnp.asarray(heads)))
     theirs = [number[net.get_closest_lane_index(p, h)] for p, h in zip(pts, heads)]
     np.testing.assert_array_equal(ours, theirs)
 

@@ -4,8 +4,16 @@ import itertools
 
 import pytest
 
-from jaxsmarl.hierarchy import (agent_order, chain, default_hierarchy, flat, format_hierarchy, is_chain,
-                                parse_hierarchy, validate_hierarchy)
+from jaxsmarl.hierarchy import (
+    agent_order,
+    chain,
+    default_hierarchy,
+    flat,
+    format_hierarchy,
+    is_chain,
+    parse_hierarchy,
+    validate_hierarchy,
+)
 
 
 @pytest.mark.parametrize("text, k, want", [

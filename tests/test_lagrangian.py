@@ -71,7 +71,7 @@ def test_penalty_values_and_gradients():
     # d/dG = lam (dual) or lam * 1[G > d] (hinge); the penalty never moves lambda
     np.testing.assert_allclose(jax.grad(lambda x: dual.penalty(lam, x).sum())(g), [[2.0, 0.5], [2.0, 0.5]])
     np.testing.assert_allclose(jax.grad(lambda x: hinge.penalty(lam, x).sum())(g), [[2.0, 0.0], [0.0, 0.5]])
-    np.testing.assert_allclose(jax.grad(lambda l: dual.penalty(l, g).sum())(lam), [0.0, 0.0])
+    np.testing.assert_allclose(jax.grad(lambda lam_: dual.penalty(lam_, g).sum())(lam), [0.0, 0.0])
 
 
 def test_runs_in_x64(x64):

@@ -1,7 +1,6 @@
 """CS-MADDPG family (Algorithm 2): Stackelberg actor gradients (p23, p25) against finite differences, TD targets,
 soft updates, exploration schedule, learning on a toy problem with a closed-form optimum, registry and CLI."""
 
-import dataclasses
 import os
 import sys
 
@@ -11,8 +10,14 @@ import numpy as np
 import pytest
 from jax.flatten_util import ravel_pytree
 
-from jaxsmarl.algos.maddpg import (MADDPGAgent, MADDPGConfig, Transition, actor_columns, critic_values,
-                                   critic_values_columns)
+from jaxsmarl.algos.maddpg import (
+    MADDPGAgent,
+    MADDPGConfig,
+    Transition,
+    actor_columns,
+    critic_values,
+    critic_values_columns,
+)
 from jaxsmarl.layout import ENV_VAR
 from train.config import load_config
 
@@ -57,7 +62,8 @@ def _fd_grad(f, params, h=1e-6):
 @pytest.fixture
 def setup(x64):
     agent = _agent()
-    st = jax.tree.map(lambda x: x.astype(jnp.float64) if x.dtype == jnp.float32 else x, agent.init(jax.random.PRNGKey(3)))
+    st = jax.tree.map(lambda x: x.astype(jnp.float64) if x.dtype == jnp.float32 else x,
+                      agent.init(jax.random.PRNGKey(3)))
     obs = jax.random.normal(jax.random.PRNGKey(4), (6, 2, D))
     lam = jnp.array([0.7, 1.3])
     return agent, st, obs, lam
@@ -74,7 +80,8 @@ def test_leader_gradient_goes_through_the_follower(setup):
     g_naive = np.asarray(grad(False))  # ignores d mu2 / d a1
     assert np.linalg.norm(g_naive - fd) > 0.05 * np.linalg.norm(fd)
     # the naive gradient is the finite difference with the follower's action frozen at its current value
-    a2_fixed = agent.actor.apply(st.actors[1], jnp.concatenate([obs[:, 1], agent.actor.apply(st.actors[0], obs[:, 0])], -1))
+    a2_fixed = agent.actor.apply(st.actors[1],
+                                 jnp.concatenate([obs[:, 1], agent.actor.apply(st.actors[0], obs[:, 0])], -1))
 
     def frozen(theta1):
         a1 = agent.actor.apply(theta1, obs[:, 0])
@@ -160,7 +167,8 @@ def test_plain_maddpg_follower_ignores_the_leader(x64):
     a = agent.greedy_act(st, obs)
     np.testing.assert_allclose(a[:, 1], agent.actor.apply(st.actors[1], obs[:, 1]))
     lam = jnp.zeros(2)
-    g = lambda t: ravel_pytree(jax.grad(lambda x: agent.actor_losses(x, st.critics, lam, obs, t)[0][0])(st.actors)[0])[0]
+    g = lambda t: ravel_pytree(
+        jax.grad(lambda x: agent.actor_losses(x, st.critics, lam, obs, t)[0][0])(st.actors)[0])[0]
     np.testing.assert_allclose(g(True), g(False))  # no path through mu2 exists
     v = agent.actor_values(st.actors, st.critics, obs)
     np.testing.assert_allclose(v[:, 1, 0], _critic_ref(agent, st.critics, 1, 0, obs, a[:, 0], a[:, 1]), rtol=1e-10)
@@ -237,7 +245,8 @@ def test_sequential_actor_order_steps_the_follower_against_the_stepped_leader(x6
 
     def follower_values(theta2):
         a2 = sim.actor.apply(theta2, jnp.concatenate([obs[:, 1], a1_new], -1))
-        return (_critic_ref(sim, st.critics, 1, 0, obs, a1_new, a2), _critic_ref(sim, st.critics, 1, 1, obs, a1_new, a2))
+        return (_critic_ref(sim, st.critics, 1, 0, obs, a1_new, a2),
+                _critic_ref(sim, st.critics, 1, 1, obs, a1_new, a2))
 
     def follower_loss(theta2):
         q, g = follower_values(theta2)

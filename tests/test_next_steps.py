@@ -4,8 +4,8 @@ parsers accept and that point at that folder."""
 import os
 import shlex
 
-from train import experiments, render
 from train import __main__ as cli
+from train import experiments, render
 from train.next_steps import next_steps
 
 

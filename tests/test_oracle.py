@@ -15,7 +15,6 @@ import functools
 
 import numpy as np
 import pytest
-
 from highway_env.road.lane import CircularLane, LineType, SineLane, StraightLane
 
 from tests.highway_oracle import SCENARIOS, make_oracle_env, oracle_lanes, run_oracle
@@ -469,7 +468,8 @@ def test_continuous_action_shapes_equivalent():
 
 
 def test_merge_obstacle_not_observed():
-    """include_obstacles=False: the follower next to the obstacle still observes the leader (docs/scenarios.md, Observation)."""
+    """include_obstacles=False: the follower next to the obstacle still observes the leader (docs/scenarios.md,
+    Observation)."""
     r = _run("merge", IDLE, IDLE)
     np.testing.assert_allclose(r["obs"][9:, 1, 4:6], np.stack([r["x"][9:, 0], r["y"][9:, 0]], -1), atol=1e-4)
 

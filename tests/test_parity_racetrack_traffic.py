@@ -183,7 +183,8 @@ def test_parity_full(config, x64):
     """30 random-action episodes per configuration, to the first ``done`` (off the road, a crash or 1501 steps);
     10 lane-keeping episodes of up to 300 steps."""
     err, lengths, changes, crashes, ties = full_set(**SLOW_CONFIGS[config])
-    print(f"\n{NAME} {config}: {len(lengths)} episodes, {sum(lengths)} steps (longest {max(lengths)}), worst position error "
+    print(f"\n{NAME} {config}: {len(lengths)} episodes, {sum(lengths)} steps (longest {max(lengths)}), "
+          f"worst position error "
           f"{err:.1e} m, {changes} lane-change decisions, {crashes} vehicles crashed at the end, {ties} tie cells")
 
 

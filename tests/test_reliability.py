@@ -166,7 +166,8 @@ def test_failed_checkpoint_write_keeps_the_earlier_ones(tmp_path):
         ck.save(1, _state(1), {"s": 1})
         ck.save(2, _state(2), {"s": 2})
         with _FileSizeLimit(4096):  # the state's data file is far larger
-            with pytest.raises(CheckpointWriteError, match=r"could not write the checkpoint at step 3 .*intact \(1, 2\)"):
+            with pytest.raises(CheckpointWriteError,
+                               match=r"could not write the checkpoint at step 3 .*intact \(1, 2\)"):
                 ck.save(3, _state(3), {"s": 3})
         assert ck.all_steps() == [1, 2]
         assert not [n for n in os.listdir(d) if "tmp" in n]  # the unfinished save is cleaned away
@@ -394,7 +395,8 @@ def test_missing_or_unreadable_config_file(tmp_path, capsys):
     ("roundabout", {"speed_band_low": 20.0}, r"speed_band_low \(20\) must not exceed speed_band_high \(15\)"),
     ("roundabout", {"speed_band_high": -1.0}, r"'speed_band_high' is a speed in m/s and must be >= 0"),
     ("merge", {"target_speeds": [-5.0, 0.0, 5.0]}, r"'target_speeds' is speeds in m/s and must be >= 0"),
-    ("intersection", {"acceleration_range": (5.0, -5.0)}, r"'acceleration_range' must be \(low, high\) with low < high"),
+    ("intersection", {"acceleration_range": (5.0, -5.0)},
+     r"'acceleration_range' must be \(low, high\) with low < high"),
     ("racetrack", {"steering_range": (0.5, 0.5)}, r"'steering_range' must be \(low, high\) with low < high"),
     ("merge", {"obstacles": [[100.0, 14.5, 0.0, 0.0, 2.0]]}, r"obstacles rows .* length and width > 0"),
     ("merge", {"policy_frequency": 0}, r"0 < policy_frequency <= simulation_frequency"),
@@ -435,7 +437,8 @@ NAN, INF = float("nan"), float("inf")
     ("racetrack-v0", {"idm": {"politeness": 2.0}}, r"idm politeness is a weight in \[0, 1\] and must be >= 0 and <= 1"),
     ("highway-v0", {"idm": {"acc_max": 0.0}}, r"idm acc_max is an acceleration in m/s\^2 and must be > 0"),
     ("highway-fast-v0", {"idm": {"delta": NAN}}, r"idm delta is an exponent and must be > 0, got nan"),
-    ("highway-fast-v0", {"idm": {"delta_range": (4.5, 3.5)}}, r"idm delta_range must be \(low, high\) .* 0 < low <= high"),
+    ("highway-fast-v0", {"idm": {"delta_range": (4.5, 3.5)}},
+     r"idm delta_range must be \(low, high\) .* 0 < low <= high"),
 ])
 def test_traffic_task_parameters_outside_their_physical_range(task, overrides, match):
     # highway-env's tasks take costs, the reward's speed range and the IDM drivers' constants; a comfort

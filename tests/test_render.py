@@ -56,7 +56,7 @@ def test_continuous_and_none_line_types_and_vertical_lane():
     road = _road(L.straight([10, 30], [10, 0], line_types=(L.LINE_CONTINUOUS, L.LINE_NONE)))
     view = drawing.View(0.0, -5.0, 5.0, 100, 200)
     img = np.asarray(drawing.draw_road(road, view))
-    col_left, col_right = int(8 * 5), int(12 * 5)
+    col_left = int(8 * 5)
     for y in np.arange(0.5, 29.6, 0.5):
         assert tuple(img[int((y + 5) * 5), col_left]) == WHITE, y  # CONTINUOUS: no gaps
     assert not np.any(np.all(img[:, col_left + 3:] == WHITE, axis=-1))  # NONE: no marking at all on the right
@@ -87,7 +87,8 @@ def test_vehicle_rectangle_pixels_at_known_pose(heading_deg):
     dx, dy = ii + 0.5 - 100, jj + 0.5 - 100
     lon = dx * math.cos(h) + dy * math.sin(h)
     lat = -dx * math.sin(h) + dy * math.cos(h)
-    inside = (np.abs(lon) < 25 - 1.5) & (np.abs(lat) < 10 - 1.5) & (lon < 25 - 6 - 1.5)  # clear of edges and the front bar
+    # Clear of the edges and the front bar.
+    inside = (np.abs(lon) < 25 - 1.5) & (np.abs(lat) < 10 - 1.5) & (lon < 25 - 6 - 1.5)
     outside = (np.abs(lon) > 25 + 1.5) | (np.abs(lat) > 10 + 1.5)
     colour = lambda c: np.all(img == np.array(c), axis=-1)
     assert colour(drawing.COLORS["leader"])[inside].all()
@@ -125,7 +126,8 @@ def test_random_episode_gif_has_one_frame_per_stride_and_replays_eagerly(tmp_pat
     env = envs_jax.make("merge")
     params = env.default_params
     out = str(tmp_path / "merge.gif")
-    res = render.render_episode(env, params, episode_record.simple_policy(env, "random"), out, seed=3, stride=4, mp4=False)
+    res = render.render_episode(env, params, episode_record.simple_policy(env, "random"), out, seed=3, stride=4,
+                                mp4=False)
     rec = res["record"]
     n, F = rec["n"], env.frames
     assert len(rec["x"]) == 1 + n * F

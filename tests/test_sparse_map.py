@@ -45,7 +45,8 @@ def test_nested_vmap_equals_dense():
     y = jnp.ones((4, 30, 3, 2))
     got = jax.jit(jax.vmap(jax.vmap(lambda m, a, b: sparse_map(_fn, m, a, b))))(mask, x, y)
     full = jax.vmap(jax.vmap(jax.vmap(_fn)))(x, y)
-    np.testing.assert_allclose(np.asarray(got["a"]), np.asarray(jnp.where(mask[..., None], full["a"], 0)), rtol=1e-6, atol=1e-6)
+    np.testing.assert_allclose(np.asarray(got["a"]), np.asarray(jnp.where(mask[..., None], full["a"], 0)),
+                               rtol=1e-6, atol=1e-6)
 
 
 @pytest.mark.parametrize("fraction", [1 / 32, 1 / 4, 1.0])
@@ -58,8 +59,8 @@ def test_chunk_fraction_equals_dense_where(fraction):
         mask = jax.random.uniform(k3, (500, 2)) < p
         got = jax.jit(jax.vmap(lambda m, a, b: sparse_map(_fn, m, a, b, fraction=fraction)))(mask, x, y)
         full = jax.vmap(jax.vmap(_fn))(x, y)
-        np.testing.assert_allclose(np.asarray(got["a"]), np.asarray(jnp.where(mask[..., None], full["a"], 0)), rtol=1e-6,
-                                   atol=1e-6)
+        np.testing.assert_allclose(np.asarray(got["a"]), np.asarray(jnp.where(mask[..., None], full["a"], 0)),
+                                   rtol=1e-6, atol=1e-6)
 
 
 @pytest.mark.parametrize("n", [1, 2, 31, 32, 33, 100, 4096, 5001])

@@ -13,7 +13,6 @@ from jaxsmarl.hierarchy import agent_order, validate_hierarchy
 from jaxsmarl.stackelberg import stackelberg_equilibrium
 from tests.csq_reference import REFERENCE, SOLVER_RULES, solver_inputs
 
-
 # ----------------------------------------------------------------------------------------------------------
 # Brute force: the documented rule, one state at a time, by enumeration.
 

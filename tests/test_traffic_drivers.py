@@ -23,7 +23,6 @@ from highway_env.vehicle.controller import MDPVehicle
 from highway_env.vehicle.objects import Obstacle
 
 from envs_jax import drivers, idm
-from envs_jax import lanes as L
 from envs_jax import neighbours as N
 from envs_jax.mobil import ObjectTable, mobil, pair_acceleration
 from envs_jax.scenarios import highway, roundabout

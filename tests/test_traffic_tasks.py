@@ -35,7 +35,8 @@ def test_highway_env_config_accepted(name):
     assert jax.tree_util.tree_all(jax.tree_util.tree_map(lambda a, b: np.array_equal(a, b), env.default_params,
                                                          plain.default_params))
     multi = dict(cls.default_config(), controlled_vehicles=3,
-                 observation={"type": "MultiAgentObservation", "observation_config": cls.default_config()["observation"]},
+                 observation={"type": "MultiAgentObservation",
+                              "observation_config": cls.default_config()["observation"]},
                  action={"type": "MultiAgentAction", "action_config": cls.default_config()["action"]})
     env3 = envs_jax.make(name, multi)
     assert env3.controlled == (0, 1, 2) and env3.obs_shape == (3, 5, 5)
@@ -112,7 +113,8 @@ def test_placement_rule_keeps_vehicles_apart(name):
 def test_roundabout_routes_and_destination():
     """Agents cross to the opposite exit; ``incoming_vehicle_destination`` fixes the incoming vehicle's exit."""
     env, reset = full_env("roundabout-v0")
-    assert envs_jax.make("roundabout-v0", incoming_vehicle_destination=1).default_params.incoming_vehicle_destination == 1
+    params = envs_jax.make("roundabout-v0", incoming_vehicle_destination=1).default_params
+    assert params.incoming_vehicle_destination == 1
     params = env.default_params.replace(incoming_vehicle_destination=1)
     states = reset(jax.random.split(jax.random.key(0), 256), params)  # the batch of the placement test
     for b in range(8):

@@ -53,7 +53,8 @@ def test_continuous_scenario_with_discrete_algorithm():
 def test_unknown_key_in_config_file(tmp_path):
     p = tmp_path / "c.json"
     p.write_text(json.dumps({"total_steps": 100, "batchsize": 32}))
-    with pytest.raises(ValueError, match="unknown config key 'batchsize' for algorithm 'csq' in .*c.json.*'batch_size'"):
+    with pytest.raises(ValueError,
+                       match="unknown config key 'batchsize' for algorithm 'csq' in .*c.json.*'batch_size'"):
         load_config("merge", "csq", config_file=str(p))
     p.write_text("{not json")
     with pytest.raises(ValueError, match="not valid JSON"):

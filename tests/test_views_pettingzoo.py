@@ -194,7 +194,8 @@ def test_batched_pettingzoo_equals_independent_views(name):
     for _ in range(steps):
         for k in range(n):
             for a in singles[k].agents:  # a finished car's observation is not reported by the single view
-                np.testing.assert_allclose(obs_b[a][k], obs_s[k][a], rtol=1e-4, atol=1e-3)  # vmapped vs single float32: last-ulp differences
+                # vmapped vs single float32: last-ulp differences
+                np.testing.assert_allclose(obs_b[a][k], obs_s[k][a], rtol=1e-4, atol=1e-3)
         per_env = [random_actions(singles[k], rng, agents) for k in range(n)]
         actions = {a: np.stack([np.asarray(per_env[k][a]) for k in range(n)]) for a in agents}
         obs_b, rew_b, cost_b, term_b, trunc_b, info_b = batched.step(actions)
@@ -207,7 +208,8 @@ def test_batched_pettingzoo_equals_independent_views(name):
                     assert rew_b[a][k] == pytest.approx(rew_k[a], abs=1e-4)
                     assert cost_b[a][k] == pytest.approx(info_k[a]["cost"], abs=1e-4)
                     assert term_b[a][k] == term_k[a] and trunc_b[a][k] == trunc_k[a]
-                    np.testing.assert_allclose(info_b[a]["final_obs"][k], obs_k[a], rtol=1e-4, atol=1e-3)  # vmapped vs single float32: last-ulp differences
+                    # vmapped vs single float32: last-ulp differences
+                    np.testing.assert_allclose(info_b[a]["final_obs"][k], obs_k[a], rtol=1e-4, atol=1e-3)
                 else:
                     assert rew_b[a][k] == 0.0 and cost_b[a][k] == 0.0
             assert bool(info_b[agents[0]]["episode_over"][k]) == (not single.agents)

@@ -22,8 +22,9 @@ from typing import Any, Callable
 
 from jaxsmarl.options import TERMINAL_MASKS, Bool, Choice, Int, Num, PerAgent, Sizes
 
-__all__ = ["COMMON", "COMMON_HELP", "AlgoSpec", "ALGOS", "SCENARIOS", "SCENARIO_AGENTS", "CONFIG_DIR", "DEFAULTS", "HELP",
-           "register", "spec", "parse_set", "RESUME_FREE", "defaults_for", "help_for", "load_config", "read_run_config", "validate", "config_path",
+__all__ = ["COMMON", "COMMON_HELP", "AlgoSpec", "ALGOS", "SCENARIOS", "SCENARIO_AGENTS", "CONFIG_DIR", "DEFAULTS",
+           "HELP", "register", "spec", "parse_set", "RESUME_FREE", "defaults_for", "help_for", "load_config",
+           "read_run_config", "validate", "config_path",
            "preset_values", "LEGACY", "MATMUL_PRECISIONS", "TERMINAL_MASKS",
            "Int", "Num", "Choice", "Bool", "PerAgent", "Sizes"]
 
@@ -295,7 +296,8 @@ def _check_action_type(scenario: str, algo: str) -> None:
         scen = [n for n, t in SCENARIOS.items() if t == s.action]
         raise ValueError(
             f"scenario '{scenario}' has {SCENARIOS[scenario]} actions but algorithm '{algo}' needs {s.action} "
-            f"actions; use {algo} with {' or '.join('--scenario ' + x for x in scen)}, or train {scenario} with {', '.join(fits) or 'an algorithm for ' + SCENARIOS[scenario] + ' actions (none registered)'}")
+            f"actions; use {algo} with {' or '.join('--scenario ' + x for x in scen)}, or train {scenario} with "
+            f"{', '.join(fits) or 'an algorithm for ' + SCENARIOS[scenario] + ' actions (none registered)'}")
 
 
 def _agents(scenario: str, value: Any) -> int:

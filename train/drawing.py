@@ -18,8 +18,8 @@ import math
 import jax
 import numpy as np
 
-__all__ = ["COLORS", "WHOLE_ROAD_EXTENT", "View", "draw_frame", "draw_road", "draw_vehicle", "fit_view", "lane_surfaces",
-           "marking_segments", "road_bounds", "vehicle_corners"]
+__all__ = ["COLORS", "WHOLE_ROAD_EXTENT", "View", "draw_frame", "draw_road", "draw_vehicle", "fit_view",
+           "lane_surfaces", "marking_segments", "road_bounds", "vehicle_corners"]
 
 VEHICLE_LENGTH, VEHICLE_WIDTH = 5.0, 2.0
 FRONT_BAR = 0.6  # metres of the car's front drawn dark

@@ -41,7 +41,8 @@ DEFAULT_SEEDS = 10
 # --quick budgets per (scenario, algo): overrides of the run configuration. Target: the whole study (12 runs, each
 # with its compilations, a greedy evaluation and a GIF) in under 15 minutes on an idle 2-core CPU. Every run has 4
 # seeds (an even count: seeds are split over both cores) and a budget that is a whole number of chunks (a partial
-# last chunk compiles a second program); the measured time is in docs/performance.md. Compilation costs more than training at these budgets; a re-run finds its programs in DIR/jax_cache. Learning
+# last chunk compiles a second program); the measured time is in docs/performance.md. Compilation costs more than
+# training at these budgets; a re-run finds its programs in DIR/jax_cache. Learning
 # shows in merge (CSQ crash rate 0.75 -> 0.1) and roundabout (total return 20 -> 55-60); MADDPG barely starts in
 # 2000 steps; MAPPO-L/MACPO get 4 updates of 512 envs x 16 steps.
 QUICK: dict[tuple[str, str], dict] = {

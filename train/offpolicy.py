@@ -1,6 +1,7 @@
 """The off-policy training loop (:func:`make_offpolicy_train`, CSQ and the MADDPG family).
 
-One iteration = act in every env, step the auto-resetting envs, store the transitions (with the pre-reset observation as ``s'`` and per-agent
+One iteration = act in every env, step the auto-resetting envs, store the transitions (with the pre-reset observation
+as ``s'`` and per-agent
 ``terminated``), then ``updates_per_step`` gradient updates once ``warmup`` transitions are stored (Algorithm 1's
 inner loop); warm-up gating is a real branch, not a select, since the iteration index is unbatched. Its agent
 provides ``init(key)``, ``exploration(env_step)`` (a pytree: CSQ's per-agent epsilon, MADDPG's noise scales),

@@ -125,8 +125,8 @@ CODE_DIFFERENCES = [
      "exploration floor of 0.05 (our `sq`); on the continuous scenarios it is Stackelberg MADDPG without a cost "
      "critic (our `s-maddpg`)."),
     (None, None,
-     "Rewards, costs and termination are the authors' coded ones (docs/scenarios.md), e.g. the roundabout's +5 on every "
-     "step on the exit road and merge's one-shot arrival bonus."),
+     "Rewards, costs and termination are the authors' coded ones (docs/scenarios.md), e.g. the roundabout's +5 on "
+     "every step on the exit road and merge's one-shot arrival bonus."),
     (None, None,
      "The authors' MACPO / MAPPO-L code is not shipped; our implementations follow the published algorithms "
      "(docs/algorithms.md), so their reference numbers are not like-for-like."),

@@ -3,7 +3,8 @@ numbers, and the known paper-vs-code differences.
 
 Every number of a run is first reduced to one value per seed: the mean over the last ceil(10%) of that seed's
 training episodes (the window of the authors' records, docs/results.md, and of summary.json), or the mean over
-its greedy evaluation episodes. Across seeds we report the inter-quartile mean (IQM) with a 95% stratified bootstrap interval
+its greedy evaluation episodes. Across seeds we report the inter-quartile mean (IQM) with a 95% stratified bootstrap
+interval
 (:mod:`jaxsmarl.stats`). Comparisons say "higher" / "lower" only when the two intervals do not overlap.
 
 ``python -m train.report STUDY_DIR`` rewrites RESULTS.md from the run folders;
@@ -208,7 +209,8 @@ def _honesty(all_runs: dict[str, dict[str, dict]]) -> list[str]:
             s, sign = compare("CSQ", crash(runs["csq"]), "SQ", crash(runs["sq"]), f"{scenario} crash rate")
             verdict = {-1: "agrees with the paper (CSQ safer)", 1: "contradicts the paper (SQ safer)",
                        0: "does not confirm the paper's claim that CSQ is safer"}[sign]
-            out.append(f"- **{scenario}, is CSQ safer than SQ?** {s} This {verdict}.{_short_budget(scenario, runs['csq'])}")
+            out.append(f"- **{scenario}, is CSQ safer than SQ?** {s} "
+                       f"This {verdict}.{_short_budget(scenario, runs['csq'])}")
             c = final_per_seed(runs["csq"], "crash")
             zero = sum(1 for v in c if v == 0)
             out.append(f"  - The paper calls CSQ {'100% safe after convergence' if scenario == 'merge' else 'safer'}"
@@ -266,9 +268,9 @@ def _honesty(all_runs: dict[str, dict[str, dict]]) -> list[str]:
                        f"{budget}{caveat}.")
     censored = [f"{scenario} {item}" for scenario, runs in all_runs.items() for item in short_runs(scenario, runs)]
     if censored:
-        out += ["", "Caution: in these runs each parallel env stepped fewer than 5 times the episode limit, so episodes "
-                    "that end early (crashes) are over-represented among the finished ones, in the curves' first bins "
-                    "and in the last-10% statistics alike: " + "; ".join(censored) + "."]
+        out += ["", "Caution: in these runs each parallel env stepped fewer than 5 times the episode limit, so "
+                    "episodes that end early (crashes) are over-represented among the finished ones, in the curves' "
+                    "first bins and in the last-10% statistics alike: " + "; ".join(censored) + "."]
     seeds = sorted({int(r["config"]["num_seeds"]) for runs in all_runs.values() for r in runs.values()})
     if seeds and min(seeds) < 5:
         n = min(seeds)

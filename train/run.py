@@ -150,7 +150,7 @@ def _run_locked(config: dict, out: str, *, resume: bool, env, verbose: bool, max
         n_iter = m["episode"]["returned"].shape[1]
         steps_run += n_iter * E
         n_run += 1
-        new = log.add_steps(m["episode"], start_iter, E)
+        log.add_steps(m["episode"], start_iter, E)
         env_steps = (start_iter + n_iter) * E
         if "update" in m:
             learner.add(chunk_rows(m["update"], env_steps, m.get("updated")))

@@ -27,7 +27,8 @@ RENDER_KEYS = frozenset({"screen_width", "screen_height", "centering_position", 
 
 
 def int_value(name, key, value, lo, hi=None):
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < lo or (hi is not None and value > hi):
+    if (isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < lo
+            or (hi is not None and value > hi)):
         rng = f">= {lo}" if hi is None else f"in {lo}..{hi}"
         raise ValueError(f"{name}: {key} must be an integer {rng}, got {value!r}")
     return int(value)

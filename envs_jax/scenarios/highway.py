@@ -30,8 +30,17 @@ from flax import struct
 from envs_jax import kinematic_obs
 from envs_jax import lanes as L
 from envs_jax.road import RoadNetwork
-from envs_jax.scenarios.config_values import (config_given, cost_value, flag_value, idm_params, int_value,
-                                              meta_action_config, number_value, observation_config, speed_range)
+from envs_jax.scenarios.config_values import (
+    config_given,
+    cost_value,
+    flag_value,
+    idm_params,
+    int_value,
+    meta_action_config,
+    number_value,
+    observation_config,
+    speed_range,
+)
 from envs_jax.traffic_env import Task, TrafficEnv, TrafficParams
 
 C, S, N = L.LINE_CONTINUOUS_LINE, L.LINE_STRIPED, L.LINE_NONE
@@ -148,7 +157,8 @@ class Highway(Task):
         n = self.num_vehicles
         ctrl = jnp.asarray(self.is_controlled[:n])
         speed = jnp.asarray(draws["speed"], dtype)
-        spacing = jnp.where(ctrl, jnp.asarray(params.ego_spacing, dtype), 1 / jnp.asarray(params.vehicles_density, dtype))
+        spacing = jnp.where(ctrl, jnp.asarray(params.ego_spacing, dtype),
+                            1 / jnp.asarray(params.vehicles_density, dtype))
         offset = spacing * (12 + 1.0 * speed) * self.spacing_factor
 
         def spawn(carry, inp):

@@ -94,7 +94,8 @@ class Intersection(ContinuousScenario, Scenario):
     simulation_frequency = 15
     policy_frequency = 1
     params_cls = IntersectionParams
-    # Keys of the authors' env_config.json that the multi-agent step never reads (docs/scenarios.md, 'Where we follow the authors' code').
+    # Keys of the authors' env_config.json that the multi-agent step never reads
+    # (docs/scenarios.md, 'Where we follow the authors' code').
     inert_config_keys = frozenset({"arrived_reward", "collision_reward", "high_speed_reward", "on_road_reward",
                                    "first_arrive_reward", "second_arrive_reward", "reward_speed_range",
                                    "destination", "initial_vehicle_count", "spawn_probability"})

@@ -42,8 +42,17 @@ from envs_jax import lane_locate as LL
 from envs_jax import lanes as L
 from envs_jax import vehicle as Veh
 from envs_jax.idm import IDMParams
-from envs_jax.scenarios.config_values import (config_given, cost_value, flag_value, idm_params, int_value, number_value,
-                                              observation_config, speed_range, unwrap_section)
+from envs_jax.scenarios.config_values import (
+    config_given,
+    cost_value,
+    flag_value,
+    idm_params,
+    int_value,
+    number_value,
+    observation_config,
+    speed_range,
+    unwrap_section,
+)
 from envs_jax.scenarios.intersection import build_road
 from envs_jax.time_limit import step_limit
 from envs_jax.traffic_env import Task, TrafficEnv, TrafficParams
@@ -230,7 +239,8 @@ class IntersectionTraffic(Task):
         return st.replace(
             x=w(x, st.x), y=w(y, st.y), heading=w(heading, st.heading), speed=w(bx(speed), st.speed),
             alive=st.alive | where, crashed=w(False, st.crashed), on_road=w(on_road, st.on_road),
-            lane=w(lane, st.lane), target_lane=w(lane, st.target_lane), target_speed=w(bx(target_speed), st.target_speed),
+            lane=w(lane, st.lane), target_lane=w(lane, st.target_lane),
+            target_speed=w(bx(target_speed), st.target_speed),
             speed_index=w(0, st.speed_index), steering=w(zero, st.steering), acceleration=w(zero, st.acceleration),
             impact=w(jnp.zeros_like(st.impact), st.impact), has_impact=w(False, st.has_impact),
             timer=w(timer, st.timer), delta=w(bx(delta), st.delta), route_roads=w(rr, st.route_roads),
@@ -316,7 +326,8 @@ class IntersectionTraffic(Task):
         reward = (0 + params.collision_reward * col + params.high_speed_reward * high_speed
                   + params.arrived_reward * arr + params.on_road_reward * onr)
         reward = jnp.where(arrived, params.arrived_reward, reward) * onr
-        normalised = 0 + (reward - params.collision_reward) * (1 - 0) / (params.arrived_reward - params.collision_reward)
+        normalised = (0 + (reward - params.collision_reward) * (1 - 0)
+                      / (params.arrived_reward - params.collision_reward))
         reward = jnp.where(params.normalize_reward, normalised, reward)
         cost = (params.collision_cost * crashed).astype(dtype)
         terminated = crashed | arrived | (params.offroad_terminal & ~on_road)

@@ -262,7 +262,8 @@ def make_merge_cavs(name: str = NAME, env_config: dict | None = None, **override
     Keys: ``traffic_density`` (1, 2, 3 or ``"easy"``, ``"medium"``, ``"hard"``), ``COLLISION_REWARD``,
     ``HIGH_SPEED_REWARD``, ``HEADWAY_COST``, ``HEADWAY_TIME``, ``MERGING_LANE_COST``, ``reward_speed_range``,
     ``duration`` (s), the frequencies, ``observation`` and ``action`` (highway-env's forms; defaults MARL_CAVs'
-    ``Kinematics`` options :data:`OBSERVATION` and target speeds 10..30 m/s in 5 steps), ``safety_guarantee`` and ``action_masking`` (False only: MARL_CAVs' safety supervisor
+    ``Kinematics`` options :data:`OBSERVATION` and target speeds 10..30 m/s in 5 steps), ``safety_guarantee`` and
+    ``action_masking`` (False only: MARL_CAVs' safety supervisor
     and action masks belong to its learning method), plus ``num_slots`` (>= the density's most CAVs + most HDVs),
     ``collision_cost`` and ``idm`` (default MARL_CAVs' driver constants; a dict changes some of them). Unknown keys
     and bad values raise ``ValueError`` naming them and what is allowed.

@@ -96,7 +96,8 @@ class Racetrack(ContinuousScenario, Scenario):
     simulation_frequency = 15
     policy_frequency = 5
     params_cls = RacetrackParams
-    # Keys of the authors' env_config.json that the multi-agent step never reads (docs/scenarios.md, 'Where we follow the authors' code').
+    # Keys of the authors' env_config.json that the multi-agent step never reads
+    # (docs/scenarios.md, 'Where we follow the authors' code').
     inert_config_keys = frozenset({"other_vehicles", "speed_limit", "terminate_off_road"})
 
     def __init__(self, action_mode: str | None = None):

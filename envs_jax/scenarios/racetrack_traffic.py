@@ -41,8 +41,15 @@ from flax import struct
 from envs_jax import kinematic_obs, occupancy_grid
 from envs_jax import lanes as L
 from envs_jax.continuous_traffic_env import ContinuousTrafficEnv
-from envs_jax.scenarios.config_values import (config_given, cost_value, flag_value, idm_params, int_value, number_value,
-                                              unwrap_section)
+from envs_jax.scenarios.config_values import (
+    config_given,
+    cost_value,
+    flag_value,
+    idm_params,
+    int_value,
+    number_value,
+    unwrap_section,
+)
 from envs_jax.scenarios.racetrack import build_road
 from envs_jax.traffic_env import Task, TrafficParams
 
@@ -205,7 +212,8 @@ def _action(value) -> tuple:
     for key, default in (("acceleration_range", (-5.0, 5.0)), ("steering_range", (-np.pi / 4, np.pi / 4))):
         rng = action.pop(key, None)
         rng = default if rng is None else rng
-        if np.shape(rng) != (2,) or not np.all(np.isfinite(np.asarray(rng, float))) or not float(rng[0]) < float(rng[1]):
+        if (np.shape(rng) != (2,) or not np.all(np.isfinite(np.asarray(rng, float)))
+                or not float(rng[0]) < float(rng[1])):
             raise ValueError(f"{NAME}: {key} must be [low, high] with finite low < high, got {rng!r}")
         out[key] = (float(rng[0]), float(rng[1]))
     target_speeds = np.asarray(action.pop("target_speeds", [0, 5, 10]), np.float64)  # unused by ContinuousAction
@@ -249,7 +257,8 @@ def make_racetrack(name: str = NAME, env_config: dict | None = None, **overrides
     """
     cfg = dict(DEFAULTS)
     given = config_given(name, cfg, OWN_KEYS, env_config, overrides,
-                         "racetrack-v1 is not implemented; racetrack-v0 searches neighbours on one lane segment (False)")
+                         "racetrack-v1 is not implemented; racetrack-v0 searches neighbours on one lane segment "
+                         "(False)")
     for key in INERT_KEYS:
         if key in given:
             number_value(name, key, given.pop(key), positive=True)

@@ -58,7 +58,8 @@ def build_road():
     w = 2 * np.pi / dev
     exit_phase = -np.pi / 2 + w * delta_en
     net.add_lane("ser", "ses", L.straight([2, access], [2, dev / 2], line_types=(S, C)))
-    net.add_lane("ses", "se", L.sine([2 + a, dev / 2], [2 + a, dev / 2 - delta_st], a, w, -np.pi / 2, line_types=(C, C)))
+    net.add_lane("ses", "se",
+                 L.sine([2 + a, dev / 2], [2 + a, dev / 2 - delta_st], a, w, -np.pi / 2, line_types=(C, C)))
     net.add_lane("sx", "sxs", L.sine([-2 - a, -dev / 2 + delta_en], [-2 - a, dev / 2], a, w, exit_phase,
                                      line_types=(C, C)))
     net.add_lane("sxs", "sxr", L.straight([-2, dev / 2], [-2, access], line_types=(N, C)))

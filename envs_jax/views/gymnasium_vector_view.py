@@ -38,8 +38,7 @@ from gymnasium.vector import AutoresetMode
 from gymnasium.vector.utils import batch_space
 
 from envs_jax.views import spaces as S
-from envs_jax.views.gymnasium_view import (InvalidAction, ResetNeeded, agent_index, require_partner,
-                                           single_agent_step)
+from envs_jax.views.gymnasium_view import InvalidAction, ResetNeeded, agent_index, require_partner, single_agent_step
 from envs_jax.views.spaces import AgentSpec, agent_info, host_key
 
 _MODES = {"next_step": AutoresetMode.NEXT_STEP, "same_step": AutoresetMode.SAME_STEP}

@@ -21,7 +21,8 @@ def check(cfg: dict) -> None:
     for k in ("total_steps", "chunk_steps"):
         if cfg[k] % cycle:
             raise ValueError(f"'{k}' ({cfg[k]}) must be a multiple of num_envs * rollout_length ({cycle}): a chunk "
-                             f"holds whole rollout+update cycles; e.g. set {k} to {max(1, round(cfg[k] / cycle)) * cycle}")
+                             f"holds whole rollout+update cycles; "
+                             f"e.g. set {k} to {max(1, round(cfg[k] / cycle)) * cycle}")
     if cycle % cfg["num_minibatches"]:
         raise ValueError(f"num_envs * rollout_length ({cycle}) must be a multiple of num_minibatches "
                          f"({cfg['num_minibatches']}): every minibatch has the same size")
