@@ -280,8 +280,9 @@ def test_train_config():
 def test_csq_trains_on_merge_cavs():
     """CSQ with one leader and two followers through the off-policy loop and the greedy evaluation on easy traffic
     (1-3 CAVs an episode): finite losses, and agent 0 (present in every episode) returns its reward."""
+    from train.build import make_train
     from train.config import load_config
-    from train.loop import make_train, seed_keys
+    from train.trainer import seed_keys
 
     cfg = load_config("merge-cavs", "csq", {"agents": 3, "hierarchy": "0|1,2", "total_steps": 120, "num_envs": 2,
                                             "chunk_steps": 120, "num_seeds": 1, "warmup": 16, "batch_size": 16,
