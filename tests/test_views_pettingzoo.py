@@ -321,3 +321,31 @@ def test_pettingzoo_bad_input_at_the_intersection():
     _bad_actions(view, [({"agent_0": 1, "agent_1": 3},
                          "agent_1 must be an integer in 0..2 \\(0=SLOWER, 1=IDLE, 2=FASTER\\)"),
                         ({"agent_0": -1, "agent_1": 1}, "agent_0 must be an integer in 0..2")])
+
+
+def test_pettingzoo_agents_without_a_vehicle_are_not_in_the_episode():
+    """merge-cavs-v0 draws 1-3 controlled vehicles per episode (easy traffic): after reset the view lists exactly
+    the agents whose slot holds a vehicle (read from the simulator's own state), every count occurs over the seeds,
+    and an episode's agents never include an absent one."""
+    from envs_jax.scenarios.merge_cavs import agents_alive
+
+    env = envs_jax.make("merge-cavs-v0", traffic_density=1)
+    pz = PettingZooDrivingEnv(env)
+    counts = set()
+    for seed in range(12):
+        obs, infos = pz.reset(seed=seed)
+        alive = np.asarray(agents_alive(env, pz._state))
+        expected = [a for a, p in zip(pz.possible_agents, alive) if p]
+        assert pz.agents == expected and sorted(obs) == sorted(expected) and sorted(infos) == sorted(expected)
+        counts.add(len(expected))
+    assert counts == {1, 2, 3}
+    pz.reset(seed=0)
+    live = list(pz.agents)
+    _, _, terms, truncs, _ = pz.step({a: 1 for a in live})
+    assert set(terms) == set(live) and set(pz.agents) <= set(live)
+
+
+@pytest.mark.slow
+def test_pettingzoo_checkers_pass_with_absent_agents():
+    env = envs_jax.make("merge-cavs-v0", traffic_density=1)
+    parallel_api_test(PettingZooDrivingEnv(env), num_cycles=40)

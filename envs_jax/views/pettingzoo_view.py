@@ -97,8 +97,17 @@ class PettingZooDrivingEnv(ParallelEnv):
         self._key, key_reset = jax.random.split(key)
         obs, self._state = self.env.reset(key_reset, self.params)
         self._obs = np.asarray(obs, dtype=self.spec.obs_dtype)
-        self.agents = list(self.possible_agents)
-        return {a: self._obs[i].copy() for i, a in enumerate(self.agents)}, {a: {} for a in self.agents}
+        self.agents = self._present_agents()
+        index = {a: i for i, a in enumerate(self.possible_agents)}
+        return {a: self._obs[index[a]].copy() for a in self.agents}, {a: {} for a in self.agents}
+
+    def _present_agents(self) -> list[str]:
+        """The agents that take part in the episode just reset: all of them, except in tasks that draw how many
+        controlled vehicles an episode has (``has_absent_agents``), where an agent without a vehicle is left out."""
+        if not getattr(self.env, "has_absent_agents", False):
+            return list(self.possible_agents)
+        present = np.asarray(jax.device_get(self._state.alive))[np.asarray(self.env.controlled)]
+        return [a for a, p in zip(self.possible_agents, present) if p]
 
     def step(self, actions: dict):
         if self._state is None:
