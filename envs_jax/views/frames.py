@@ -1,11 +1,11 @@
-"""RGB frames of a simulator state for the host views' ``render()``, drawn by ``train/render.py``.
+"""RGB frames of a simulator state for the host views' ``render()``, drawn by ``train/drawing.py``.
 
 The road is drawn once (Pillow, highway-env's look) and the cars on top of it every call, as
 highway-env colours them: the two-agent scenarios' agent 0 green and agent 1 blue; in the traffic
 tasks every controlled car green (highway-env's ``MDPVehicle`` colour) and the background traffic
 blue (its ``IDMVehicle`` colour), only the occupied vehicle slots; red once crashed. Compact roads
 (intersection, racetrack) are shown whole; long ones (merge, roundabout's approaches, highway) in
-a window around the controlled cars. ``train.render`` and Pillow are imported on the first frame only.
+a window around the controlled cars. ``train.drawing`` and Pillow are imported on the first frame only.
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ class FrameRenderer:
         self._fixed = None  # (view, background) when the whole road fits
 
     def __call__(self, state) -> np.ndarray:
-        from train import render as R
+        from train import drawing as R
 
         x, y = np.asarray(state.x, np.float64), np.asarray(state.y, np.float64)
         heading, crashed = np.asarray(state.heading, np.float64), np.asarray(state.crashed, bool)
