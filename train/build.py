@@ -3,8 +3,7 @@ loop, traced at the configuration's matrix-product precision."""
 
 from __future__ import annotations
 
-import jax
-
+from jaxsmarl.layout import layout
 from train.config import COMMON, spec
 from train.offpolicy import make_offpolicy_train
 from train.onpolicy import make_onpolicy_train
@@ -22,6 +21,6 @@ def make_train(config: dict, env=None) -> Trainer:
     algo = spec(config["algo"])
     env = make_env(config["scenario"], config.get("agents")) if env is None else env
     trainer = LOOPS[algo.loop](config, env, algo.make_agent(config, env[0]))
-    if algo.seeds_in_sequence_on_cpu:  # an accelerator keeps the seeds batched
-        trainer = trainer._replace(seeds_in_sequence=jax.default_backend() == "cpu")
+    if algo.seeds_in_sequence_on_cpu:  # the column layout (XLA:CPU) runs a device's seeds one after another
+        trainer = trainer._replace(seeds_in_sequence=layout() == "columns")
     return with_matmul_precision(trainer, config.get("matmul_precision", COMMON["matmul_precision"]))
