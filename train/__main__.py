@@ -55,6 +55,7 @@ examples:
   python -m train --set leader_rule=authors --set infeasible=argmax   # the authors' action rule
   python -m train --scenario racetrack --algo cs-maddpg --preset authors   # every coded option of theirs
   python -m train --scenario highway --agents 3 --hierarchy "0|1,2"   # CSQ, one leader, two followers
+  python -m train --scenario highway --agents 3 --algo mappo-l   # the no-hierarchy on-policy baseline
   python -m train --sweep lr=[3e-4,1e-3,3e-3] --seeds 8   # 3 learning rates x 8 seeds in one program
   python -m train --seeds 8 --coordinator-address 127.0.0.1:12355 --num-processes 2 --process-id 0   # and id 1
                                                         # (several processes and hosts: docs/distributed.md)
@@ -82,7 +83,7 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--hierarchy", default=None, metavar="LEVELS",
                    help="who decides before whom (CSQ, SQ): levels of agent indices, '|' between levels and ',' "
                         "within one, e.g. '0|1|2' (vertical chain, the default), '0,1|2' (two leaders), '0,1,2' "
-                        "(no hierarchy)")
+                        "(no hierarchy, the only one MAPPO-L and MACPO take)")
     p.add_argument("--seeds", type=int, default=None, help="number of seeds trained in parallel (default 8)")
     p.add_argument("--seed", type=int, default=None, help="base random seed (default 0)")
     p.add_argument("--steps", type=int, default=None,

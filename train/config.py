@@ -98,6 +98,7 @@ COMMON_RULES: dict[str, Callable] = {
 # The registry.
 
 LOOPS = ("offpolicy", "onpolicy")  # the training loops an algorithm can run in (train.build)
+ACTION_KINDS = ("discrete", "continuous", "both")  # the action spaces an algorithm takes
 
 
 @dataclasses.dataclass(frozen=True)
@@ -110,11 +111,13 @@ class AlgoSpec:
     that drives it, ``"offpolicy"`` (:mod:`train.offpolicy`) or ``"onpolicy"`` (:mod:`train.onpolicy`), joined by
     :func:`train.build.make_train`; ``seeds_in_sequence_on_cpu``: on the CPU each device runs its seeds one after
     another, cheaper there for these learners' updates (docs/performance.md);
-    ``presets``: name -> values that ``--preset NAME`` sets (after the JSON file, before ``--set``).
+    ``presets``: name -> values that ``--preset NAME`` sets (after the JSON file, before ``--set``);
+    ``flat_only``: a no-hierarchy baseline, which accepts the key ``hierarchy`` only as the flat one (all agents
+    on one level) and then drops it.
     """
 
     name: str
-    action: str  # "discrete" | "continuous"
+    action: str  # "discrete" | "continuous" | "both"
     summary: str
     defaults: dict
     help: dict
@@ -124,10 +127,11 @@ class AlgoSpec:
     check: Callable | None = None
     presets: dict = dataclasses.field(default_factory=dict)
     seeds_in_sequence_on_cpu: bool = False
+    flat_only: bool = False
 
     def __post_init__(self):
-        if self.action not in ("discrete", "continuous"):
-            raise ValueError(f"AlgoSpec {self.name}: action must be discrete or continuous")
+        if self.action not in ACTION_KINDS:
+            raise ValueError(f"AlgoSpec {self.name}: action must be discrete, continuous or both")
         if self.loop not in LOOPS:
             raise ValueError(f"AlgoSpec {self.name}: loop must be one of {', '.join(LOOPS)}, got {self.loop!r}")
         missing = [k for k in self.defaults if k not in self.help]
@@ -271,6 +275,7 @@ def load_config(scenario: str | None = None, algo: str | None = None, overrides:
     spec(algo)
     _check_action_type(scenario, algo)
     valid = defaults_for(algo)
+    _drop_flat_hierarchy(scenario, algo, overrides)
     for k in overrides:
         if k not in valid:
             raise _unknown_key(k, "the overrides", algo)
@@ -289,10 +294,28 @@ def load_config(scenario: str | None = None, algo: str | None = None, overrides:
     return validate(cfg)
 
 
+def _drop_flat_hierarchy(scenario: str, algo: str, overrides: dict) -> None:
+    """A no-hierarchy baseline (``AlgoSpec.flat_only``) given ``hierarchy``: drop it when it is the flat one (one
+    level of every agent), else refuse it."""
+    if not spec(algo).flat_only or "hierarchy" not in overrides:
+        return
+    given = overrides.pop("hierarchy")
+    if given is None:
+        return
+    from jaxsmarl.hierarchy import flat, format_hierarchy, validate_hierarchy
+
+    k = _agents(scenario, overrides.get("agents"))
+    levels = validate_hierarchy(given, k)
+    if len(levels) != 1:
+        raise ValueError(f"'{algo}' is a no-hierarchy baseline (all {k} agents act at once) but hierarchy "
+                         f"'{format_hierarchy(levels)}' has {len(levels)} levels; leave --hierarchy out or give the "
+                         f"flat '{format_hierarchy(flat(k))}' (csq and sq train hierarchies)")
+
+
 def _check_action_type(scenario: str, algo: str) -> None:
     s = spec(algo)
-    if SCENARIOS[scenario] != s.action:
-        fits = [a for a, sp in ALGOS.items() if sp.action == SCENARIOS[scenario]]
+    if s.action not in (SCENARIOS[scenario], "both"):
+        fits = [a for a, sp in ALGOS.items() if sp.action in (SCENARIOS[scenario], "both")]
         scen = [n for n, t in SCENARIOS.items() if t == s.action]
         raise ValueError(
             f"scenario '{scenario}' has {SCENARIOS[scenario]} actions but algorithm '{algo}' needs {s.action} "
