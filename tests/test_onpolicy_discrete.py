@@ -189,10 +189,10 @@ def test_k3_discrete_update_is_finite_and_multipliers_follow_the_cost(cls):
 
 def test_hierarchy_is_refused_unless_flat():
     for algo in ("mappo-l", "macpo"):
-        with pytest.raises(ValueError, match="no-hierarchy baseline .* '0|1|2' has 3 levels.*flat '0,1,2'"):
+        with pytest.raises(ValueError, match=r"no-hierarchy baseline .* '0\|1\|2' has 3 levels.*flat '0,1,2'"):
             load_config("highway", algo, {"agents": 3, "hierarchy": "0|1|2"})
-        with pytest.raises(ValueError, match="hierarchy"):
-            load_config("highway", algo, {"agents": 3, "hierarchy": "0,1"})  # agent 2 missing
+        with pytest.raises(ValueError, match=r"misses agent\(s\) \[2\]"):
+            load_config("highway", algo, {"agents": 3, "hierarchy": "0,1"})
         for flat in ("0,1,2", "2,0,1", "flat"):
             cfg = load_config("highway", algo, {"agents": 3, "hierarchy": flat})
             assert "hierarchy" not in cfg and cfg["agents"] == 3
