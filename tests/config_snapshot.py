@@ -48,7 +48,10 @@ def resolved_configs() -> dict:
                 cases.append([f"--scenario={scenario}", f"--algo={algo}", f"--preset={preset}"])
     cases += [["--scenario=highway", "--agents=3"], ["--scenario=highway", "--agents=4", "--hierarchy=0,1|2,3"],
               ["--scenario=highway", "--agents=3", "--hierarchy=0|1|2", "--preset=authors"],
-              ["--scenario=highway", "--agents=2", "--algo=sq"]]
+              ["--scenario=highway", "--agents=2", "--algo=sq"],
+              ["--scenario=racetrack-v0", "--algo=cs-maddpg", "--agents=4", "--hierarchy=0,1|2,3"],
+              ["--scenario=racetrack-v0", "--algo=s-maddpg", "--agents=2", "--hierarchy=1|0"],
+              ["--scenario=racetrack-v0", "--algo=c-maddpg", "--hierarchy=0|1|2"]]
     out = {}
     for argv in cases:
         try:
