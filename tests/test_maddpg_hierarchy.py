@@ -165,9 +165,9 @@ def test_sequential_actor_order_steps_level_after_level(x64):
     g2 = jax.grad(lambda t: loss((new.actors[0], new.actors[1], t))[2])(st.actors[2])
     step = ravel_pytree(new.actors[2])[0] - ravel_pytree(st.actors[2])[0]
     g2 = ravel_pytree(g2)[0]
-    big = np.abs(g2) > 1e-2  # where Adam's epsilon is negligible
+    big = np.abs(g2) > 1e-5  # where Adam's epsilon (1e-8) is negligible
     assert big.sum() >= 5
-    np.testing.assert_allclose(step[big], -agent.config.lr_actor * np.sign(g2[big]), rtol=1e-5)
+    np.testing.assert_allclose(step[big], -agent.config.lr_actor * np.sign(g2[big]), rtol=1e-2)
 
 
 def test_configuration_for_k_agents():
