@@ -105,9 +105,9 @@ class MADDPGAgent:
     # ---------------------------------------------------------------------------------------------
     def init(self, key: jax.Array) -> MADDPGState:
         """Online networks, identical target copies (Alg. 2 initialisation), Adam states, lambda_init."""
-        keys = jax.random.split(key, 1 + self.n)  # critics, then each agent's actor
-        critics = self.critic_stack.init(keys[0])
-        actors = tuple(self.actor_nets[i].init(keys[1 + i]) for i in range(self.n))
+        k_crit, *k_actors = jax.random.split(key, 1 + self.n)  # critics, then each agent's actor
+        critics = self.critic_stack.init(k_crit)
+        actors = tuple(net.init(k) for net, k in zip(self.actor_nets, k_actors))
         return MADDPGState(actors=actors, critics=critics, target_actors=actors, target_critics=critics,
                            actor_opt=self.actor_opt.init(actors), critic_opt=self.critic_opt.init(critics),
                            lam=self.lagrangian.init(), n_updates=jnp.int32(0))
@@ -198,7 +198,7 @@ class MADDPGAgent:
     def act(self, state: MADDPGState, obs: jax.Array, key: jax.Array, explore: dict) -> jax.Array:
         """Exploring actions ``[..., K, k]``; each level responds to the executed (noisy) actions of the levels
         above it."""
-        keys = jax.random.split(key, self.n)
+        keys = tuple(jax.random.split(key, self.n))
         eps, noise = explore["eps"], explore["noise"]
         acts = self._decide(state.actors, obs, lambda i, mu: self._explore(mu, keys[i], eps[i], noise[i]))
         return jnp.stack([acts[i] for i in range(self.n)], axis=-2)
@@ -237,11 +237,12 @@ class MADDPGAgent:
         for pos, i in enumerate(order):
             # a_i live in theta_i, on the fixed actions of the agents before it (its actor reads those above it)
             own[i] = self.action(i, actors[i], obs[:, i], fixed, for_update=True)
-            fixed[i] = sg(own[i])
             row = dict(fixed)
-            row[i] = own[i] if through else fixed[i]
-            for j in order[pos + 1:]:  # the later agents respond; a_i reaches those below its level
-                row[j] = self.action(j, sg(actors[j]), obs[:, j], row, for_update=True)
+            if pos + 1 < len(order):
+                fixed[i] = sg(own[i])
+                row[i] = own[i] if through else fixed[i]
+                for j in order[pos + 1:]:  # the later agents respond; a_i reaches those below its level
+                    row[j] = self.action(j, sg(actors[j]), obs[:, j], row, for_update=True)
             row[i] = own[i]
             rows[i] = row
         x = jnp.stack([self.critic_input(obs, *[rows[i][j] for j in range(self.n)])[:, i] for i in range(self.n)],
