@@ -52,7 +52,10 @@ def resolved_configs() -> dict:
               ["--scenario=highway", "--agents=3", "--algo=mappo-l"],
               ["--scenario=highway", "--agents=4", "--algo=macpo", "--hierarchy=0,1,2,3"],
               ["--scenario=highway", "--agents=3", "--algo=mappo-l", "--hierarchy=0|1|2"],
-              ["--scenario=merge-cavs", "--agents=4", "--algo=mappo-l"]]
+              ["--scenario=merge-cavs", "--agents=4", "--algo=mappo-l"],
+              ["--scenario=racetrack-v0", "--algo=cs-maddpg", "--agents=4", "--hierarchy=0,1|2,3"],
+              ["--scenario=racetrack-v0", "--algo=s-maddpg", "--agents=2", "--hierarchy=1|0"],
+              ["--scenario=racetrack-v0", "--algo=c-maddpg", "--hierarchy=0|1|2"]]
     out = {}
     for argv in cases:
         try:

@@ -56,6 +56,7 @@ examples:
   python -m train --scenario racetrack --algo cs-maddpg --preset authors   # every coded option of theirs
   python -m train --scenario highway --agents 3 --hierarchy "0|1,2"   # CSQ, one leader, two followers
   python -m train --scenario highway --agents 3 --algo mappo-l   # the no-hierarchy on-policy baseline
+  python -m train --scenario racetrack-v0 --agents 3 --algo cs-maddpg --hierarchy "0|1|2"   # a chain of three
   python -m train --sweep lr=[3e-4,1e-3,3e-3] --seeds 8   # 3 learning rates x 8 seeds in one program
   python -m train --seeds 8 --coordinator-address 127.0.0.1:12355 --num-processes 2 --process-id 0   # and id 1
                                                         # (several processes and hosts: docs/distributed.md)
@@ -75,15 +76,16 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--scenario", choices=list(SCENARIOS), default=None,
                    help="driving scenario (default merge): merge, roundabout, highway (highway-v0 with K "
                         "controlled vehicles) and merge-cavs (MARL_CAVs' merge, up to K CAVs) have discrete actions, "
-                        "intersection and racetrack continuous ones; the algorithm must match")
+                        "intersection, racetrack and racetrack-v0 (racetrack-v0 with K controlled vehicles) continuous "
+                        "ones; the algorithm must match")
     p.add_argument("--algo", choices=list(ALGOS), default=None, help=_algos_help() + " (default csq)")
     p.add_argument("--agents", type=int, default=None, metavar="K",
                    help="controlled agents (default: the scenario's, 2; --scenario highway takes 2..8, CSQ up to 4; "
-                        "merge-cavs 3 or 4, the most CAVs of its easy or medium traffic)")
+                        "merge-cavs 3 or 4, the most CAVs of its easy or medium traffic; racetrack-v0 2..8, default 3)")
     p.add_argument("--hierarchy", default=None, metavar="LEVELS",
-                   help="who decides before whom (CSQ, SQ): levels of agent indices, '|' between levels and ',' "
-                        "within one, e.g. '0|1|2' (vertical chain, the default), '0,1|2' (two leaders), '0,1,2' "
-                        "(no hierarchy, the only one MAPPO-L and MACPO take)")
+                   help="who decides before whom (CSQ, SQ, S-MADDPG, CS-MADDPG): levels of agent indices, '|' "
+                        "between levels and ',' within one, e.g. '0|1|2' (vertical chain, the default), '0,1|2' (two "
+                        "leaders), '0,1,2' (no hierarchy, the only one MAPPO-L and MACPO take)")
     p.add_argument("--seeds", type=int, default=None, help="number of seeds trained in parallel (default 8)")
     p.add_argument("--seed", type=int, default=None, help="base random seed (default 0)")
     p.add_argument("--steps", type=int, default=None,

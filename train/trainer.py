@@ -57,14 +57,17 @@ class Trainer(NamedTuple):
 def make_env(scenario: str, agents: int | None = None):
     """``(env, auto-reset env, params)`` from :mod:`envs_jax`. ``highway`` is highway-v0 with ``agents``
     controlled vehicles (default 2), ``merge-cavs`` MARL_CAVs' merge with at most ``agents`` CAVs (3: easy traffic,
-    the default; 4: medium), their observations flattened per agent (:mod:`envs_jax.traffic_autoreset`)."""
+    the default; 4: medium), ``racetrack-v0`` highway-env's racetrack with ``agents`` controlled vehicles (default
+    3), their observations flattened per agent (:mod:`envs_jax.traffic_autoreset`)."""
     import envs_jax
 
-    if scenario in ("highway", "merge-cavs"):
+    if scenario in ("highway", "merge-cavs", "racetrack-v0"):
         from envs_jax.traffic_autoreset import TrafficAutoResetWrapper
 
         if scenario == "highway":
             env = envs_jax.make("highway-v0", controlled_vehicles=2 if agents is None else int(agents))
+        elif scenario == "racetrack-v0":
+            env = envs_jax.make("racetrack-v0", controlled_vehicles=3 if agents is None else int(agents))
         else:
             density = {3: 1, 4: 2}.get(3 if agents is None else int(agents))
             if density is None:
