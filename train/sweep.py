@@ -12,6 +12,9 @@ The sweep program maps over the configurations one after another on each device 
 exactly as a one-configuration run does (batched, or one after another, over the same seed sharding). So seed
 ``i`` of configuration ``c`` is computed by the same per-device program as seed ``i`` of a separate run with
 configuration ``c``; only that configuration's values arrive as inputs instead of constants.
+
+A sweep's folder is resumed like a run's (``--resume``): the same sweep only (:mod:`train.sweep_folder`), from
+its newest intact checkpoint of the ``[C, S]`` state, bit-identical to an uninterrupted sweep.
 """
 
 from __future__ import annotations
