@@ -102,23 +102,11 @@ def config_name(config: dict, keys: list[str]) -> str:
 
 
 def sweep_values(configs: list[dict], keys: list[str]):
-    """``{key: array [C, ...]}``: the swept values of every configuration (``[C]``, ``[C, n_agents]`` or
-    ``[C, *shape]`` of an environment parameter). Algorithm keys are float32; environment parameters float64 here,
-    which JAX takes as its default float (float32, or float64 under ``jax_enable_x64``), as it takes the
-    parameters of a separate run."""
+    """``{key: float32 array [C, ...]}``: the swept values of every configuration (``[C]``, ``[C, n_agents]`` or
+    ``[C, *shape]`` of an environment parameter)."""
     import numpy as np
 
-    return {k: np.asarray([swept_value(c, k) for c in configs], np.float64 if k.startswith(ENV_PREFIX) else np.float32)
-            for k in keys}
-
-
-def _like_python_number(x):
-    """Traced ``x`` weakly typed, as a Python float parameter is in a separate run's program: combined with a
-    float32 array it stays float32, with integers or booleans it takes the default float (jax.numpy's type
-    promotion), so the sweep's program has the separate run's dtypes also under ``jax_enable_x64``."""
-    from jax._src.lax.lax import _convert_element_type
-
-    return _convert_element_type(x, x.dtype, weak_type=True)
+    return {k: np.asarray([swept_value(c, k) for c in configs], np.float32) for k in keys}
 
 
 def trainer_for(config: dict, env, values: dict):
@@ -131,28 +119,24 @@ def trainer_for(config: dict, env, values: dict):
     for k, v in values.items():
         if k.startswith(ENV_PREFIX):
             default = getattr(params, k[len(ENV_PREFIX):])
-            if isinstance(default, tuple):  # a pair of Python numbers (a speed range)
-                fields[k[len(ENV_PREFIX):]] = tuple(_like_python_number(v[i]) for i in range(v.shape[0]))
-            else:  # a Python number, or an array
-                fields[k[len(ENV_PREFIX):]] = _like_python_number(v) if v.ndim == 0 else v
+            fields[k[len(ENV_PREFIX):]] = tuple(v[i] for i in range(v.shape[0])) if isinstance(default, tuple) else v
         else:
             cfg[k] = [v[i] for i in range(v.shape[0])] if v.ndim else v
     return make_train(cfg, (base, wrapped, params.replace(**fields)) if fields else env)
 
 
-def check_traceable(config: dict, env, keys: list[str], values: dict | None = None) -> None:
+def check_traceable(config: dict, env, keys: list[str]) -> None:
     """Trace the training programs with ``keys`` as inputs; a key the program reads as a Python number (to set a
-    shape or a loop) cannot be swept and is refused here, before anything is compiled. ``values``: the swept
-    values (:func:`sweep_values`; default ``config``'s own, as float32)."""
+    shape or a loop) cannot be swept and is refused here, before anything is compiled."""
     import jax
     import jax.numpy as jnp
 
     from train.build import make_train
 
     trainer = make_train(config, env)
-    if values is None:
-        values = {k: jnp.asarray([swept_value(config, k)], jnp.float32) for k in keys}
-    shapes = {k: jax.ShapeDtypeStruct(jnp.shape(v)[1:], jnp.asarray(v).dtype) for k, v in values.items()}
+    values = {k: jax.ShapeDtypeStruct(jnp.shape(jnp.asarray(swept_value(config, k) if not k.startswith(ENV_PREFIX)
+                                                            else getattr(env[2], k[len(ENV_PREFIX):]), jnp.float32)),
+                                      jnp.float32) for k in keys}
     key = jax.ShapeDtypeStruct((2,), jnp.uint32)
 
     def probe(vals, k):
@@ -162,7 +146,7 @@ def check_traceable(config: dict, env, keys: list[str], values: dict | None = No
         return t.evaluate(state.agent, k)
 
     try:
-        jax.eval_shape(probe, shapes, key)
+        jax.eval_shape(probe, values, key)
     except (jax.errors.ConcretizationTypeError, jax.errors.TracerBoolConversionError,
             jax.errors.TracerIntegerConversionError, jax.errors.TracerArrayConversionError, TypeError) as e:
         raise ValueError(f"cannot sweep {', '.join(keys)} with {config['algo']}: the program uses the value of one "
@@ -283,10 +267,10 @@ def run_sweep(config: dict, sweep: dict[str, list], out: str, *, resume: bool = 
                 metrics.write_json(os.path.join(d, "config.json"), cfg)
         distributed.sync("sweep folder ready")
 
-        values = sweep_values(configs, keys)
-        check_traceable(config, env, keys, values)
+        check_traceable(config, env, keys)
         trainer = make_train(config, env)
         S, C, E = config["num_seeds"], len(configs), config["num_envs"]
+        values = sweep_values(configs, keys)
 
         def built(name):
             return lambda v, *a: getattr(trainer_for(config, env, v), name)(*a)
