@@ -17,6 +17,7 @@ from __future__ import annotations
 import dataclasses
 import difflib
 import json
+import math
 import os
 from typing import Any, Callable
 
@@ -24,9 +25,12 @@ from jaxsmarl.options import TERMINAL_MASKS, Bool, Choice, Int, Num, PerAgent, S
 
 __all__ = ["COMMON", "COMMON_HELP", "AlgoSpec", "ALGOS", "SCENARIOS", "SCENARIO_AGENTS", "CONFIG_DIR", "DEFAULTS",
            "HELP", "register", "spec", "parse_set", "RESUME_FREE", "defaults_for", "help_for", "load_config",
-           "read_run_config", "validate", "config_path",
+           "read_run_config", "validate", "config_path", "with_overrides", "env_values", "ENV_PREFIX",
            "preset_values", "LEGACY", "MATMUL_PRECISIONS", "TERMINAL_MASKS",
            "Int", "Num", "Choice", "Bool", "PerAgent", "Sizes"]
+
+# an override ``env.<field>`` sets one environment parameter (train.env_params)
+ENV_PREFIX = "env."
 
 CONFIG_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), "configs")
 
@@ -55,6 +59,7 @@ COMMON: dict[str, Any] = {
     "eval_episodes": 10,
     "eval_max_steps": 200,
     "matmul_precision": "highest",
+    "env": {},
 }
 
 # Keys whose change does not alter a run's training trajectory: a resumed run, and a study keeping a finished run,
@@ -83,17 +88,48 @@ COMMON_HELP: dict[str, str] = {
     "eval_max_steps": "step cap of one evaluation episode",
     "matmul_precision": "float32 matrix products in the training programs: highest (full float32 on every "
                         "backend) | high | default (the backend's own: TF32 or bf16 passes on GPUs and TPUs)",
+    "env": "environment parameters replacing the scenario's defaults (fields of its params: reward weights, "
+           "costs, speed ranges; real-valued, default shapes); one at a time: --set env.collision_reward=-2",
 }
 
 
 # Validation rules (jaxsmarl.options): each returns the normalised value or raises ValueError naming the key and
 # what is allowed.
 
+def env_values(key: str, v: Any) -> dict:
+    """The ``env`` key: a JSON object of parameter name -> a finite number or a (nested) list of them, numbers as
+    floats. Which names the scenario has, and their shapes, are checked when its env is built
+    (:mod:`train.env_params`)."""
+    def real(x):
+        if isinstance(x, (list, tuple)) and x:
+            return [real(y) for y in x]
+        if isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x):
+            return float(x)
+        raise ValueError(f"'{key}' values must be finite numbers or lists of them, got {x!r}")
+
+    if not isinstance(v, dict) or not all(isinstance(k, str) and k for k in v):
+        raise ValueError(f"'{key}' must be a JSON object of environment parameter name: value, e.g. "
+                         f"{{\"collision_reward\": -2}}, got {v!r}")
+    return {k: real(x) for k, x in v.items()}
+
+
 COMMON_RULES: dict[str, Callable] = {
     "total_steps": Int(1), "num_seeds": Int(1), "seed": Int(0), "num_envs": Int(1), "chunk_steps": Int(1),
     "checkpoint_every": Int(0), "eval_episodes": Int(0), "eval_max_steps": Int(1),
     "matmul_precision": Choice(MATMUL_PRECISIONS),
+    "env": env_values,
 }
+
+
+def with_overrides(cfg: dict, overrides: dict) -> dict:
+    """``cfg`` updated by ``overrides``; an override ``env.<field>`` sets that field inside ``cfg["env"]`` (after
+    the overrides' own ``env`` object, if given)."""
+    out = {**cfg, **{k: v for k, v in overrides.items() if not k.startswith(ENV_PREFIX)}}
+    fields = {k[len(ENV_PREFIX):]: v for k, v in overrides.items() if k.startswith(ENV_PREFIX)}
+    if fields:
+        base = out.get("env") or {}
+        out["env"] = {**(base if isinstance(base, dict) else {}), **fields}
+    return out
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -279,7 +315,7 @@ def load_config(scenario: str | None = None, algo: str | None = None, overrides:
     valid = defaults_for(algo)
     _drop_flat_hierarchy(scenario, algo, overrides)
     for k in overrides:
-        if k not in valid:
+        if k not in valid and not (k.startswith(ENV_PREFIX) and len(k) > len(ENV_PREFIX)):
             raise _unknown_key(k, "the overrides", algo)
     cfg = dict(valid)
     path = config_file or config_path(scenario, algo)
@@ -291,7 +327,7 @@ def load_config(scenario: str | None = None, algo: str | None = None, overrides:
         cfg.update(data)
     if preset is not None:
         cfg.update(preset_values(algo, preset))
-    cfg.update(overrides)
+    cfg = with_overrides(cfg, overrides)
     cfg["scenario"], cfg["algo"] = scenario, algo
     return validate(cfg)
 
