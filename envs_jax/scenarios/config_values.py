@@ -16,8 +16,8 @@ from envs_jax import kinematic_obs
 from envs_jax.idm import IDMParams
 
 __all__ = ["IDM_CLASS", "IDM_RANGES", "RENDER_KEYS", "check_idm", "config_given", "continuous_action_config",
-           "cost_value", "flag_value", "idm_params", "int_value", "meta_action_config", "number_value", "observation_config", "speed_range",
-           "unwrap_section"]
+           "cost_value", "flag_value", "idm_params", "int_value", "meta_action_config", "number_value",
+           "observation_config", "speed_range", "unwrap_section"]
 
 # highway-env's IDM drivers, the only other_vehicles_type the tasks simulate
 IDM_CLASS = "highway_env.vehicle.behavior.IDMVehicle"
