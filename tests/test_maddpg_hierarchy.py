@@ -111,7 +111,8 @@ def test_every_actor_gradient_goes_through_the_levels_below(hierarchy, x64):
         # the naive gradient holds every other action fixed: the response terms of the levels below are missing
         fd_frozen = _fd_grad(_objective(agent, st, obs, decide, i, frozen=acts), st.actors[i])
         np.testing.assert_allclose(ravel_pytree(naive[i])[0], fd_frozen, rtol=1e-5, atol=1e-8)
-        assert np.linalg.norm(fd_frozen - fd) > 0.05 * np.linalg.norm(fd), i
+        # the naive gradient differs by far more than the finite-difference tolerance (rtol 1e-5) above
+        assert np.linalg.norm(fd_frozen - fd) > 0.01 * np.linalg.norm(fd), i
 
 
 def test_flat_hierarchy_is_maddpgs_independent_update(x64):

@@ -123,7 +123,7 @@ def test_sequential_factor_is_the_product_over_all_previous_agents_k3():
     assert (ratios[0].reshape(T, E)[2:5, 1] == 1.0).all()
 
 
-@pytest.mark.parametrize("cls", [MAPPOL, MACPO])
+@pytest.mark.parametrize("cls", [MAPPOL, pytest.param(MACPO, marks=pytest.mark.slow)])  # one in the default suite
 @pytest.mark.parametrize("per_agent_cost", [False, True])
 def test_absent_agent_contributes_nothing(cls, per_agent_cost):
     """Agent 2 is absent in envs 0 and 1 (merge-cavs' inactive slots): replacing everything it recorded there
@@ -167,7 +167,7 @@ def test_absent_agent_contributes_nothing(cls, per_agent_cost):
     np.testing.assert_allclose(st.episode_cost, [1.0, 2.0, 6.0] if per_agent_cost else [2.25] * K, rtol=1e-6)
 
 
-@pytest.mark.parametrize("cls", [MAPPOL, MACPO])
+@pytest.mark.parametrize("cls", [MAPPOL, pytest.param(MACPO, marks=pytest.mark.slow)])  # one in the default suite
 def test_k3_discrete_update_is_finite_and_multipliers_follow_the_cost(cls):
     """Three agents with categorical policies: updates stay finite; MAPPO-L's multipliers rise while the episode
     cost exceeds the limit and fall below it; MACPO's trust region holds."""

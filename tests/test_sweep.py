@@ -18,7 +18,8 @@ SMALL = dict(scenario="merge", algo="csq", num_seeds=2, total_steps=100, chunk_s
 LRS = [1e-3, 3e-3]
 
 
-@pytest.mark.parametrize("eval_episodes", [0, pytest.param(1, marks=pytest.mark.slow)])
+@pytest.mark.slow  # the environment-parameter sweep test below is the default suite's sweep-equals-runs check
+@pytest.mark.parametrize("eval_episodes", [0, 1])
 def test_sweep_of_two_learning_rates_equals_four_separate_runs(tmp_path, eval_episodes):
     small = dict(SMALL, eval_episodes=eval_episodes)  # the greedy evaluation compiles a third program: slow
     out = str(tmp_path / "sweep")
