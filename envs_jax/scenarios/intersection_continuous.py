@@ -31,8 +31,7 @@ import numpy as np
 from flax import struct
 
 from envs_jax import dynamics, regulation
-from envs_jax import vehicle as Veh
-from envs_jax.continuous_traffic_env import ContinuousTrafficEnv
+from envs_jax.continuous_traffic_env import ContinuousTrafficEnv, store_continuous_actions
 from envs_jax.scenarios.config_values import config_given, continuous_action_config
 from envs_jax.scenarios.intersection_traffic import (
     DEFAULTS,
@@ -117,13 +116,7 @@ class ContinuousIntersectionEnv(IntersectionTrafficEnv):
 
     def _act(self, st, action, params):
         """``ContinuousAction.act`` of every agent: store its acceleration and steering."""
-        idx = jnp.asarray(self.controlled)
-        dtype = st.x.dtype
-        acc, steer = jax.vmap(lambda a: Veh.continuous_action(
-            a.astype(dtype), self.longitudinal, self.lateral, params.acceleration_range,
-            params.steering_range))(action)
-        return st.replace(acceleration=st.acceleration.at[idx].set(acc.astype(dtype)),
-                          steering=st.steering.at[idx].set(steer.astype(dtype)))
+        return store_continuous_actions(self, st, action, params)
 
     def _kinematics(self, st, dt):
         """``Vehicle.step`` for the IDM slots, ``BicycleVehicle.step`` for the agents."""
