@@ -115,18 +115,23 @@ def test_every_actor_gradient_goes_through_the_levels_below(hierarchy, x64):
         assert np.linalg.norm(fd_frozen - fd) > 0.01 * np.linalg.norm(fd), i
 
 
+def _random_batch(obs, seed):
+    """A replay batch of three agents around ``obs [B, 3, D]`` with random actions, rewards, costs and next states."""
+    k = jax.random.split(jax.random.PRNGKey(seed), 4)
+    b = obs.shape[0]
+    return Transition(obs=obs, action=jax.random.uniform(k[0], (b, 3, 1), jnp.float64, -1, 1),
+                      reward=jax.random.normal(k[1], (b, 3)), cost=jax.random.uniform(k[2], (b, 3)),
+                      next_obs=jax.random.normal(k[3], (b, 3, D)), terminated=jnp.zeros((b, 3), bool),
+                      truncated=jnp.zeros((b,), bool))
+
+
 def test_flat_hierarchy_is_maddpgs_independent_update(x64):
     """``stackelberg`` with the one-level hierarchy '0,1,2' is MADDPG: the same update, bit for bit, and each
     actor's gradient is that of its own critic with the other agents' actions held fixed."""
     flat, st, obs = _setup(3, hierarchy="0,1,2")
     plain = _agent(3, stackelberg=False)
     assert plain.levels == flat.levels == ((0, 1, 2),)
-    k = jax.random.split(jax.random.PRNGKey(7), 4)
-    b = obs.shape[0]
-    batch = Transition(obs=obs, action=jax.random.uniform(k[0], (b, 3, 1), jnp.float64, -1, 1),
-                       reward=jax.random.normal(k[1], (b, 3)), cost=jax.random.uniform(k[2], (b, 3)),
-                       next_obs=jax.random.normal(k[3], (b, 3, D)), terminated=jnp.zeros((b, 3), bool),
-                       truncated=jnp.zeros((b,), bool))
+    batch = _random_batch(obs, 7)
     out_flat = flat.update(st, batch, jax.random.PRNGKey(0))
     out_plain = plain.update(st, batch, jax.random.PRNGKey(0))
     for x, y in zip(jax.tree.leaves(out_flat), jax.tree.leaves(out_plain)):
@@ -150,12 +155,7 @@ def test_sequential_actor_order_steps_level_after_level(x64):
     """``actor_order='sequential'`` on the chain 0|1|2: agent 1's actor loss is taken with agent 0's stepped actor
     and agent 2's unstepped one; agent 2's with both stepped actors above it."""
     agent, st, obs = _setup(3, hierarchy="0|1|2", actor_order="sequential")
-    k = jax.random.split(jax.random.PRNGKey(8), 4)
-    b = obs.shape[0]
-    batch = Transition(obs=obs, action=jax.random.uniform(k[0], (b, 3, 1), jnp.float64, -1, 1),
-                       reward=jax.random.normal(k[1], (b, 3)), cost=jax.random.uniform(k[2], (b, 3)),
-                       next_obs=jax.random.normal(k[3], (b, 3, D)), terminated=jnp.zeros((b, 3), bool),
-                       truncated=jnp.zeros((b,), bool))
+    batch = _random_batch(obs, 8)
     new, info = agent.update(st, batch, jax.random.PRNGKey(0))
     lam = st.lam
     loss = lambda actors: agent.actor_losses(actors, st.critics, lam, obs)[0]
