@@ -1,10 +1,22 @@
 import gc
 import os
+import shutil
+import tempfile
 
 os.environ.setdefault("XLA_FLAGS", "--xla_force_host_platform_device_count=1")
 
-import jax
-import pytest
+# One persistent compilation cache for the whole test session, shared by the xdist workers and by the training
+# commands that tests start in subprocesses (they inherit the environment): the suite clears jit caches after each
+# module, and many programs (the same small trainers and environments) recur across modules. The controller, which
+# imports this file before it starts any worker, makes the folder; a folder the user set is used as it is.
+_OWN_CACHE = None
+if "JAX_COMPILATION_CACHE_DIR" not in os.environ and "PYTEST_XDIST_WORKER" not in os.environ:
+    _OWN_CACHE = tempfile.mkdtemp(prefix="jaxsmarl-test-jit-cache-")
+    os.environ["JAX_COMPILATION_CACHE_DIR"] = _OWN_CACHE
+    os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0.2")
+
+import jax  # noqa: E402
+import pytest  # noqa: E402
 
 # Start the backend now, with the flags above: a test that runs the training command in-process would otherwise
 # start it with the command's own XLA flags, and every later test in that worker would compile differently
@@ -30,3 +42,9 @@ def _release_compiled_programs():
     yield
     jax.clear_caches()
     gc.collect()
+
+
+def pytest_unconfigure(config):
+    if _OWN_CACHE and "PYTEST_XDIST_WORKER" not in os.environ:
+        shutil.rmtree(_OWN_CACHE, ignore_errors=True)
+

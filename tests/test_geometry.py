@@ -36,22 +36,25 @@ def test_lane_table_matches_highway_env(name, x64):
 def test_lane_functions_match_highway_env(name, x64):
     """local_coordinates, position, heading_at, on_lane, is_reachable_from, after_end, distance."""
     env = _env(name)
-    lanes = env.road.lanes
+    # each function compiled once, the lane index traced (op-by-op dispatch made this test slow)
+    fn = {f: jax.jit(lambda k, a, b, f=f: getattr(L, f)(env.road.lanes, k, a, b))
+          for f in ("local_coordinates", "position", "on_lane", "is_reachable_from", "after_end", "distance")}
+    heading_at = jax.jit(lambda k, s: L.heading_at(env.road.lanes, k, s))
     rng = np.random.default_rng(0)
     for k, (_, _, _, lane) in enumerate(oracle_lanes(name)):
         for _ in range(20):
             s0, r0 = rng.uniform(-10, lane.length + 10), rng.uniform(-6, 6)
             p = lane.position(s0, r0)
-            s, lat = L.local_coordinates(lanes, k, p[0], p[1])
+            s, lat = fn["local_coordinates"](k, p[0], p[1])
             es, elat = lane.local_coordinates(p)
             assert float(s) == pytest.approx(es, abs=1e-9) and float(lat) == pytest.approx(elat, abs=1e-9)
-            assert float(L.heading_at(lanes, k, s0)) == pytest.approx(lane.heading_at(s0), abs=1e-12)
-            x, y = L.position(lanes, k, s0, r0)
+            assert float(heading_at(k, s0)) == pytest.approx(lane.heading_at(s0), abs=1e-12)
+            x, y = fn["position"](k, s0, r0)
             np.testing.assert_allclose([float(x), float(y)], p, atol=1e-9)
-            assert bool(L.on_lane(lanes, k, p[0], p[1])) == bool(lane.on_lane(p))
-            assert bool(L.is_reachable_from(lanes, k, p[0], p[1])) == bool(lane.is_reachable_from(p))
-            assert bool(L.after_end(lanes, k, p[0], p[1])) == bool(lane.after_end(p))
-            assert float(L.distance(lanes, k, p[0], p[1])) == pytest.approx(lane.distance(p), abs=1e-9)
+            assert bool(fn["on_lane"](k, p[0], p[1])) == bool(lane.on_lane(p))
+            assert bool(fn["is_reachable_from"](k, p[0], p[1])) == bool(lane.is_reachable_from(p))
+            assert bool(fn["after_end"](k, p[0], p[1])) == bool(lane.after_end(p))
+            assert float(fn["distance"](k, p[0], p[1])) == pytest.approx(lane.distance(p), abs=1e-9)
 
 
 @pytest.mark.parametrize("name", SCENARIOS)

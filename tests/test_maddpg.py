@@ -92,7 +92,7 @@ def test_leader_gradient_goes_through_the_follower(setup):
     np.testing.assert_allclose(g_naive, _fd_grad(frozen, st.actors[0]), rtol=1e-5, atol=1e-8)
 
 
-@pytest.mark.parametrize("critic_input", ["joint", "own"])
+@pytest.mark.parametrize("critic_input", [pytest.param("joint", marks=pytest.mark.slow), "own"])  # one default
 def test_column_layout_networks_are_the_same_functions_with_the_same_gradients(critic_input, x64):
     """The update's column-layout critics and actors (jaxsmarl.columns) against the stacked einsum critics and
     the flax actor: values and every parameter's and input's gradient, float64, reference-sized networks."""
@@ -220,6 +220,7 @@ def test_soft_update_period_and_multiplier_in_update():
     assert int(prev.n_updates) == 4
 
 
+@pytest.mark.slow  # tests/test_maddpg_hierarchy.py checks the sequential order level by level by default
 def test_sequential_actor_order_steps_the_follower_against_the_stepped_leader(x64):
     """actor_order="sequential" (authors' leader.train() then follower.train()): the leader's step and every critic
     step are those of the simultaneous update; the follower's actor takes one Adam step on its p25 loss with

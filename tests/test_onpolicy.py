@@ -35,7 +35,7 @@ def _rollout(T, E, ep_cost, key):
                       ep_returned=ended, ep_cost=jnp.full((T, E, 2), ep_cost))
 
 
-@pytest.mark.parametrize("ep_cost, rises", [(5.0, True), (0.0, False)])
+@pytest.mark.parametrize("ep_cost, rises", [pytest.param(5.0, True, marks=pytest.mark.slow), (0.0, False)])
 def test_lambda_rises_while_episode_cost_exceeds_limit(ep_cost, rises):
     # gamma 0.5: the constraint term (J_c - d)(1 - gamma) = +-2 or -0.5 dominates E(ratio A_c) (standardised A_c)
     agent = MAPPOL(PPOConfig(cost_limit=1.0, gamma=0.5, lambda_lr=0.05, num_minibatches=2, ppo_epochs=2, hidden=8))
@@ -187,7 +187,7 @@ def test_in_chunks_is_the_function_on_all_samples(B):
         np.testing.assert_allclose(a, b, rtol=1e-6, atol=1e-6)
 
 
-@pytest.mark.parametrize("algo", ["mappo-l", "macpo"])
+@pytest.mark.parametrize("algo", ["mappo-l", pytest.param("macpo", marks=pytest.mark.slow)])  # one default
 def test_update_is_the_same_in_both_layouts(algo, monkeypatch):
     """A whole update with the column layout (XLA:CPU: advantage preparation with the critics' values computed
     chunk by chunk, the sequential factor's log-probs likewise, the actor loss and the unrolled critics' steps

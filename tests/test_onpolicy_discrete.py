@@ -124,7 +124,7 @@ def test_sequential_factor_is_the_product_over_all_previous_agents_k3():
 
 
 @pytest.mark.parametrize("cls", [MAPPOL, pytest.param(MACPO, marks=pytest.mark.slow)])  # one in the default suite
-@pytest.mark.parametrize("per_agent_cost", [False, True])
+@pytest.mark.parametrize("per_agent_cost", [False, pytest.param(True, marks=pytest.mark.slow)])  # one default
 def test_absent_agent_contributes_nothing(cls, per_agent_cost):
     """Agent 2 is absent in envs 0 and 1 (merge-cavs' inactive slots): replacing everything it recorded there
     (observations, actions, log-probs, rewards, costs, terminations, episode costs) by garbage leaves the whole

@@ -71,7 +71,8 @@ def test_rank_equals_cumsum(n):
         np.testing.assert_array_equal(np.asarray(jax.jit(_rank)(jnp.asarray(m))), np.cumsum(m) - 1)
 
 
-@pytest.mark.parametrize("name", ["merge", "roundabout", "intersection", "racetrack"])
+@pytest.mark.parametrize("name", ["merge", pytest.param("roundabout", marks=pytest.mark.slow),  # discrete and
+                                  pytest.param("intersection", marks=pytest.mark.slow), "racetrack"])  # continuous
 def test_vmapped_envs_equal_envs_stepped_one_by_one(name):
     """Crashes and lane ends happen in some envs of the batch and not in others: the batched rule must give every
     env exactly what the unbatched step gives it."""

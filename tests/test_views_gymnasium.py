@@ -124,8 +124,9 @@ def test_gymnasium_bad_input():
             cont.step(action)
 
 
-@pytest.mark.parametrize("name,mode", [("merge", "next_step"), ("roundabout", "same_step"),
-                                       ("intersection", "next_step"), ("racetrack", "same_step")])
+@pytest.mark.parametrize("name,mode", [  # both modes, a discrete and a continuous scenario in the default suite
+    ("merge", "next_step"), pytest.param("roundabout", "same_step", marks=pytest.mark.slow),
+    pytest.param("intersection", "next_step", marks=pytest.mark.slow), ("racetrack", "same_step")])
 def test_vector_env_equals_single_views(name, mode):
     """next_step and same_step auto-reset agree with independent single views fed the same actions."""
     env = core(name, deterministic=True)

@@ -20,6 +20,9 @@ import envs_jax  # noqa: E402
 from envs_jax.views import JaxMARLDrivingEnv  # noqa: E402
 
 SCENARIOS = ["merge", "roundabout", "intersection", "racetrack"]
+# the long ones: one discrete and one continuous scenario in the default suite, the others under slow
+DEFAULT_TWO = ["merge", pytest.param("roundabout", marks=pytest.mark.slow),
+               pytest.param("intersection", marks=pytest.mark.slow), "racetrack"]
 EXAMPLES = os.path.join(os.path.dirname(__file__), os.pardir, "examples")
 
 
@@ -29,7 +32,7 @@ def short(name: str):
     return envs_jax.make(name, duration=3.0)
 
 
-@pytest.mark.parametrize("name", SCENARIOS)
+@pytest.mark.parametrize("name", DEFAULT_TWO)
 def test_jaxmarl_rollout_matches_the_simulator_under_jit_and_vmap(name):
     """LogWrapper(view) vmapped in one jitted scan equals the simulator's AutoResetWrapper, step by step."""
     env = short(name)
@@ -152,7 +155,7 @@ def test_jaxmarl_bad_input_eager_and_under_jit():
         jax.jit(cont.step)(key, cstate, {"agent_0": jnp.array([1]), "agent_1": zero})
 
 
-@pytest.mark.parametrize("name", ["merge", "racetrack"])
+@pytest.mark.parametrize("name", [pytest.param("merge", marks=pytest.mark.slow), "racetrack"])  # one default
 def test_jaxmarl_ippo_baseline_trains_on_a_scenario(name):
     """JaxMARL's IPPO-FF (examples/jaxmarl_ippo.py) runs a few updates, jitted, on a discrete and a continuous task."""
     sys.path.insert(0, EXAMPLES)

@@ -17,6 +17,9 @@ import envs_jax  # noqa: E402
 from envs_jax.views import BatchedPettingZooDrivingEnv, InvalidAction, PettingZooDrivingEnv, ResetNeeded  # noqa: E402
 
 SCENARIOS = ["merge", "roundabout", "intersection", "racetrack"]
+# the long ones: one discrete and one continuous scenario in the default suite, the others under slow
+DEFAULT_TWO = ["merge", pytest.param("roundabout", marks=pytest.mark.slow),
+               pytest.param("intersection", marks=pytest.mark.slow), "racetrack"]
 # short episodes so that every test sees episode ends; intersection's random start offsets off
 # where a test compares runs whose reset keys differ
 OVERRIDES = {"merge": {}, "roundabout": {}, "intersection": {"start_noise": 0.0}, "racetrack": {"duration": 6.0}}
@@ -179,7 +182,7 @@ def test_pettingzoo_bad_input():
         view.step({})
 
 
-@pytest.mark.parametrize("name", SCENARIOS)
+@pytest.mark.parametrize("name", DEFAULT_TWO)
 def test_batched_pettingzoo_equals_independent_views(name):
     """N batched environments agree with N single views given the same actions, resets included."""
     env = core(name, deterministic=True)  # resets independent of the key, so the runs can be compared
