@@ -207,6 +207,7 @@ def test_environment_keys_that_are_not_real_numbers_are_refused():
     assert config_env(dict(hw, env={"reward_speed_range": [15, 25]}))[2].reward_speed_range == (15.0, 25.0)
 
 
+@pytest.mark.slow  # a sweep and a run compiled under x64: minutes here; the dtype test below stays in the default
 def test_environment_parameter_sweep_equals_the_separate_run_under_x64(x64, tmp_path):
     # values that float32 cannot hold: a sweep passing float32 inputs into a float64 program would differ
     values = [-1.1, -2.3]
