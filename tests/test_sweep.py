@@ -208,15 +208,18 @@ def test_environment_keys_that_are_not_real_numbers_are_refused():
 
 
 @pytest.mark.slow  # a sweep and a run compiled under x64: minutes here; the dtype test below stays in the default
-def test_environment_parameter_sweep_equals_the_separate_run_under_x64(x64, tmp_path):
-    # values that float32 cannot hold: a sweep passing float32 inputs into a float64 program would differ
-    values = [-1.1, -2.3]
+@pytest.mark.parametrize("key,values", [
+    # values that float32 cannot hold: float32 inputs into the float64 simulator would differ
+    ("env.collision_reward", [-1.1, -2.3]),
+    # a learning rate meets float32 network parameters: a float64 (not weakly typed) input would differ
+    ("lr", [1e-3, 3.3e-3])])
+def test_sweep_equals_the_separate_run_under_x64(x64, tmp_path, key, values):
     small = dict(SMALL, eval_episodes=0)
     out, alone = str(tmp_path / "sweep"), str(tmp_path / "alone")
-    assert cli.main(small_args(small) + ["--out", out, "--sweep", f"env.collision_reward={json.dumps(values)}"]) == 0
-    assert cli.main(small_args(small) + ["--out", alone, "--set", f"env.collision_reward={values[1]}"]) == 0
+    assert cli.main(small_args(small) + ["--out", out, "--sweep", f"{key}={json.dumps(values)}"]) == 0
+    assert cli.main(small_args(small) + ["--out", alone, "--set", f"{key}={values[1]}"]) == 0
     folder = os.path.join(out, json.load(open(os.path.join(out, "sweep.json")))["configurations"][1]["folder"])
-    assert_same_run(folder, alone, values[1])
+    assert_same_run(folder, alone, (key, values[1]))
     from train.restore import restore_run
 
     want = restore_run(alone)[2]
