@@ -205,3 +205,97 @@ def test_environment_keys_that_are_not_real_numbers_are_refused():
     with pytest.raises(ValueError, match=r"cannot set env.normalize_reward"):
         config_env(dict(hw, env={"normalize_reward": 0.0}))
     assert config_env(dict(hw, env={"reward_speed_range": [15, 25]}))[2].reward_speed_range == (15.0, 25.0)
+
+
+@pytest.mark.slow  # a sweep and a run compiled under x64: minutes here; the dtype test below stays in the default
+@pytest.mark.parametrize("key,values", [
+    # values that float32 cannot hold: float32 inputs into the float64 simulator would differ
+    ("env.collision_reward", [-1.1, -2.3]),
+    # a learning rate meets float32 network parameters: a float64 (not weakly typed) input would differ
+    ("lr", [1e-3, 3.3e-3])])
+def test_sweep_equals_the_separate_run_under_x64(x64, tmp_path, key, values):
+    small = dict(SMALL, eval_episodes=0)
+    out, alone = str(tmp_path / "sweep"), str(tmp_path / "alone")
+    assert cli.main(small_args(small) + ["--out", out, "--sweep", f"{key}={json.dumps(values)}"]) == 0
+    assert cli.main(small_args(small) + ["--out", alone, "--set", f"{key}={values[1]}"]) == 0
+    folder = os.path.join(out, json.load(open(os.path.join(out, "sweep.json")))["configurations"][1]["folder"])
+    assert_same_run(folder, alone, (key, values[1]))
+    from train.restore import restore_run
+
+    want = restore_run(alone)[2]
+    assert any(np.asarray(x).dtype == np.float64 for x in jax.tree.leaves(want))  # the program ran in float64
+    state, meta = sweep_state(out, want, len(values))
+    assert meta["env_steps"] == 100
+    for a, b in zip(jax.tree.leaves(state), jax.tree.leaves(want)):
+        assert a.dtype == np.asarray(b).dtype
+        np.testing.assert_array_equal(a[1], np.asarray(b))  # both seeds, the whole training state
+
+
+def test_sweep_values_have_the_dtype_of_a_separate_runs_values(x64):
+    from train.sweep import sweep_values
+    from train.trainer import make_env
+
+    cfg = load_config("merge", "csq", {})
+    params = make_env("merge")[2]
+    keys = ["lr", "cost_threshold", "env.collision_reward", "env.init_speed", "env.acceleration_range"]
+    grid = sweep_configs(cfg, parse_sweep(["lr=[1e-3,3e-3]", "cost_threshold=[2,[3,4]]", "env.collision_reward=[-1,-2]",
+                                           "env.init_speed=[[20,25],[22,22]]",
+                                           "env.acceleration_range=[[-4,4],[-5,5]]"]))
+    values = sweep_values(grid, keys, params)
+    assert len(grid) == 32
+    # numbers stay Python floats (weakly typed default floats in the program, as a separate run's constants)
+    assert values["lr"][:2] == [1e-3, 1e-3] and values["cost_threshold"][:2] == [[2.0, 2.0], [2.0, 2.0]]
+    assert all(type(x) is float for x in values["env.collision_reward"])
+    assert values["env.acceleration_range"][:2] == [[-4.0, 4.0], [-5.0, 5.0]]
+    # arrays get the default float dtype (float64 here, float32 without x64)
+    assert values["env.init_speed"].dtype == np.float64 and values["env.init_speed"].shape == (32, 2)
+    with jax.enable_x64(False):
+        assert sweep_values(grid, keys, params)["env.init_speed"].dtype == np.float32
+
+
+def test_a_finished_sweep_refuses_a_smaller_budget(env_sweep, tmp_path, capsys):
+    import shutil
+
+    full, _ = env_sweep
+    out = str(tmp_path / "sweep")
+    shutil.copytree(full, out)
+    before = {name: open(os.path.join(out, name)).read() for name in
+              ("sweep.json", os.path.join("configs", "env.collision_reward=-1", "config.json"))}
+    assert cli.main(["--quiet", "--out", out, "--resume", "--steps", "75"]) == 2
+    assert "--resume --steps 75: the run already has 100 env steps per seed" in capsys.readouterr().err
+    for name, text in before.items():  # a refused resume leaves the sweep as it was
+        assert open(os.path.join(out, name)).read() == text, name
+
+
+@pytest.mark.slow  # two more sweeps (the longer one from the start, and the continuation): about a minute
+def test_a_finished_sweep_trained_further_equals_the_longer_sweep(env_sweep, tmp_path):
+    import shutil
+
+    full, small = env_sweep
+    out, longer = str(tmp_path / "further"), str(tmp_path / "longer")
+    shutil.copytree(full, out)
+    assert cli.main(["--quiet", "--out", out, "--resume", "--steps", "150"]) == 0
+    sweep = f"env.collision_reward={json.dumps(ENV_VALUES)}"
+    assert cli.main(small_args(dict(small, total_steps=150)) + ["--out", longer, "--sweep", sweep]) == 0
+    saved = json.load(open(os.path.join(out, "sweep.json")))
+    assert saved["finished"] and saved["base"]["total_steps"] == 150
+    for c in saved["configurations"]:
+        assert_same_run(os.path.join(out, c["folder"]), os.path.join(longer, c["folder"]), c["values"])
+        assert json.load(open(os.path.join(out, c["folder"], "config.json")))["total_steps"] == 150
+    like = state_template(dict(small, total_steps=150))
+    got, meta = sweep_state(out, like, len(ENV_VALUES))
+    want, _ = sweep_state(longer, like, len(ENV_VALUES))
+    assert meta["env_steps"] == 150
+    for a, b in zip(jax.tree.leaves(got), jax.tree.leaves(want)):
+        np.testing.assert_array_equal(a, b)
+
+
+def state_template(small: dict):
+    """Zeros shaped as the training state of one configuration's seeds (a restore template; nothing is compiled)."""
+    from train.build import make_train
+    from train.trainer import seed_keys
+
+    cfg = load_config(small["scenario"], small["algo"], {k: v for k, v in small.items() if k not in ("scenario",
+                                                                                                      "algo")})
+    shapes = jax.eval_shape(jax.vmap(make_train(cfg).init), seed_keys(cfg))
+    return jax.tree.map(lambda x: np.zeros(x.shape, x.dtype), shapes)

@@ -11,7 +11,8 @@ sweepable keys.
 The sweep program maps over the configurations one after another on each device and, inside, runs the seeds
 exactly as a one-configuration run does (batched, or one after another, over the same seed sharding). So seed
 ``i`` of configuration ``c`` is computed by the same per-device program as seed ``i`` of a separate run with
-configuration ``c``; only that configuration's values arrive as inputs instead of constants.
+configuration ``c``; only that configuration's values arrive as inputs instead of constants, with the dtype (and
+weak type) the constants have, so also under ``jax_enable_x64`` (:func:`program_value`).
 
 A sweep's folder is resumed like a run's (``--resume``): the same sweep only (:mod:`train.sweep_folder`), from
 its newest intact checkpoint of the ``[C, S]`` state, bit-identical to an uninterrupted sweep.
@@ -27,7 +28,7 @@ from train.config import COMMON_RULES, ENV_PREFIX, Num, PerAgent, spec, validate
 from train.env_params import real_fields
 
 __all__ = ["parse_sweep", "sweepable_keys", "sweep_configs", "config_name", "trainer_for", "sweep_parallel",
-           "check_traceable", "swept_value", "run_sweep"]
+           "check_traceable", "swept_value", "program_value", "sweep_values", "stack_values", "run_sweep"]
 
 
 def sweepable_keys(algo: str, params=None) -> list[str]:
@@ -101,12 +102,53 @@ def config_name(config: dict, keys: list[str]) -> str:
     return ",".join(f"{k}={text(swept_value(config, k))}" for k in keys)
 
 
-def sweep_values(configs: list[dict], keys: list[str]):
-    """``{key: float32 array [C, ...]}``: the swept values of every configuration (``[C]``, ``[C, n_agents]`` or
-    ``[C, *shape]`` of an environment parameter)."""
+def program_value(config: dict, key: str, params):
+    """The value of swept ``key`` in ``config`` as a separate run's program receives it, so that a sweep equals its
+    separate runs at any precision: a real number (or per-agent list of them) as Python floats, which enter the
+    program weakly typed in the default float dtype (float64 under ``jax_enable_x64``, else float32); an environment
+    parameter as :func:`train.env_params.with_values` sets it (the default when ``config`` leaves it), a float or
+    tuple of floats as Python floats, an array as an array of the default float dtype."""
+    if not key.startswith(ENV_PREFIX):
+        v = config[key]
+        return [float(x) for x in v] if isinstance(v, (list, tuple)) else float(v)
+    import jax
     import numpy as np
 
-    return {k: np.asarray([swept_value(c, k) for c in configs], np.float32) for k in keys}
+    from train.env_params import with_values
+
+    field = key[len(ENV_PREFIX):]
+    given = config.get("env") or {}
+    v = (getattr(with_values(config["scenario"], params, {field: given[field]}), field) if field in given
+         else getattr(params, field))
+    if isinstance(v, tuple):
+        return [float(x) for x in v]
+    if isinstance(v, float):
+        return v
+    v = np.asarray(v)
+    return v.astype(jax.dtypes.canonicalize_dtype(v.dtype))
+
+
+def sweep_values(configs: list[dict], keys: list[str], params=None) -> dict:
+    """``{key: the values of every configuration}`` as :func:`program_value` gives them: lists of Python floats
+    (``jit`` passes each as a weakly typed scalar of the default float dtype, as a separate run's constant), and
+    arrays stacked into one ``[C, *shape]`` array of the default float dtype. :func:`stack_values` turns them into
+    ``[C, ...]`` arrays inside the program."""
+    import numpy as np
+
+    out = {}
+    for k in keys:
+        vs = [program_value(c, k, params) for c in configs]
+        out[k] = np.stack(vs) if isinstance(vs[0], np.ndarray) else vs
+    return out
+
+
+def stack_values(values: dict) -> dict:
+    """Inside the sweep program: :func:`sweep_values`'s values as ``[C, ...]`` arrays (stacking weakly typed
+    scalars keeps them weakly typed)."""
+    import jax.numpy as jnp
+
+    return {k: v if hasattr(v, "shape") else jnp.stack([jnp.stack(x) if isinstance(x, list) else x for x in v])
+            for k, v in values.items()}
 
 
 def trainer_for(config: dict, env, values: dict):
@@ -134,9 +176,8 @@ def check_traceable(config: dict, env, keys: list[str]) -> None:
     from train.build import make_train
 
     trainer = make_train(config, env)
-    values = {k: jax.ShapeDtypeStruct(jnp.shape(jnp.asarray(swept_value(config, k) if not k.startswith(ENV_PREFIX)
-                                                            else getattr(env[2], k[len(ENV_PREFIX):]), jnp.float32)),
-                                      jnp.float32) for k in keys}
+    values = jax.eval_shape(lambda v: {k: x[0] for k, x in stack_values(v).items()},
+                            sweep_values([config], keys, env[2]))
     key = jax.ShapeDtypeStruct((2,), jnp.uint32)
 
     def probe(vals, k):
@@ -159,7 +200,7 @@ def sweep_parallel(fn: Callable, num_seeds: int, in_axes=0, donate_argnums=(), s
     arguments: the configurations one after another (``lax.map``), inside each the seeds as in
     :func:`train.parallel.seed_parallel` (batched or in sequence, the seed axis split over the devices).
     ``in_axes`` is for ``args``: 0 (a ``[C, S]`` leading pair) or None (shared). Returns a jitted
-    ``f(values [C, ...], *args)``."""
+    ``f(values, *args)``, ``values`` as :func:`sweep_values` gives them."""
     import jax
     from jax.sharding import PartitionSpec
 
@@ -168,6 +209,7 @@ def sweep_parallel(fn: Callable, num_seeds: int, in_axes=0, donate_argnums=(), s
     axes = tuple(in_axes) if isinstance(in_axes, (tuple, list)) else (in_axes,)
 
     def all_configs(values, *args):
+        values = stack_values(values)
         mapped = tuple(a for a, ax in zip(args, axes) if ax == 0)
 
         def one(xs):
@@ -216,7 +258,9 @@ def run_sweep(config: dict, sweep: dict[str, list], out: str, *, resume: bool = 
         checkpoints/<env steps>/       the training state of every configuration and seed ([C, S, ...])
 
     ``resume``: continue the same sweep in ``out`` from its newest intact checkpoint, bit-identical to an
-    uninterrupted sweep (another sweep or configuration is refused). ``max_chunks`` stops early (for tests: an
+    uninterrupted sweep (another sweep or configuration is refused); with a larger ``total_steps``, train it further
+    exactly as a longer sweep would have, under the rules of a run's ``--resume --steps``
+    (:func:`train.run_folder.check_new_budget`). ``max_chunks`` stops early (for tests: an
     interruption). Returns ``{"state": [C, S] state, "configs": [config], "summaries": [summary], "names"}``."""
     import os
     import time
@@ -232,8 +276,8 @@ def run_sweep(config: dict, sweep: dict[str, list], out: str, *, resume: bool = 
     from train.console import say
     from train.evaluation import eval_rows, write_eval_csv
     from train.lock import RunLock
-    from train.run_folder import check_out_dir, check_process_count, clear_run_dir, set_aside
-    from train.sweep_folder import SWEEP_FILE, check_same_sweep, read_sweep
+    from train.run_folder import check_new_budget, check_out_dir, check_process_count, clear_run_dir, set_aside
+    from train.sweep_folder import SWEEP_FILE, check_same_sweep, read_sweep, saved_base
     from train.trainer import config_env, seed_keys
 
     env = config_env(config) if env is None else env
@@ -250,27 +294,32 @@ def run_sweep(config: dict, sweep: dict[str, list], out: str, *, resume: bool = 
         check_out_dir(out, resume, overwrite)
         if resume:
             check_same_sweep(read_sweep(out), configs, keys, swept, out)
+            saved = saved_base(out)
         distributed.sync("sweep folder checked")
         folders = [os.path.join(out, "configs", n) for n in names]
+
+        def write_record():  # the record a resume is checked against, written before anything is trained
+            metrics.write_json(os.path.join(out, SWEEP_FILE), {
+                "base": config, "sweep": sweep, "finished": False,
+                "configurations": [{"folder": os.path.join("configs", n), "values": v}
+                                   for n, v in zip(names, swept)]})
+            for cfg, d in zip(configs, folders):
+                os.makedirs(d, exist_ok=True)
+                metrics.write_json(os.path.join(d, "config.json"), cfg)
+
         if main:
             os.makedirs(out, exist_ok=True)
             lock = lock or RunLock(out).acquire()
             if overwrite and not resume:
                 clear_run_dir(out)
-            if not resume:  # the record a resume is checked against, written before anything is trained
-                metrics.write_json(os.path.join(out, SWEEP_FILE), {
-                    "base": config, "sweep": sweep, "finished": False,
-                    "configurations": [{"folder": os.path.join("configs", n), "values": v}
-                                       for n, v in zip(names, swept)]})
-            for cfg, d in zip(configs, folders):
-                os.makedirs(d, exist_ok=True)
-                metrics.write_json(os.path.join(d, "config.json"), cfg)
+            if not resume:
+                write_record()
         distributed.sync("sweep folder ready")
 
         check_traceable(config, env, keys)
         trainer = make_train(config, env)
         S, C, E = config["num_seeds"], len(configs), config["num_envs"]
-        values = sweep_values(configs, keys)
+        values = sweep_values(configs, keys, env[2])
 
         def built(name):
             return lambda v, *a: getattr(trainer_for(config, env, v), name)(*a)
@@ -300,6 +349,8 @@ def run_sweep(config: dict, sweep: dict[str, list], out: str, *, resume: bool = 
                 check_process_count(ckpt)
                 _, state, meta = ckpt.restore_valid(state, skipped.append)
                 check_process_count(ckpt, meta)
+                if saved["total_steps"] != config["total_steps"]:  # a longer sweep, as --resume --steps for a run
+                    check_new_budget(saved, config, meta, trainer, env)
             except ValueError:
                 ckpt.close()
                 raise
@@ -309,6 +360,8 @@ def run_sweep(config: dict, sweep: dict[str, list], out: str, *, resume: bool = 
                         False)
             distributed.sync("damaged checkpoints set aside")
             done_chunks, prev_train_s = int(meta["chunks_done"]), float(meta.get("train_s_total", 0.0))
+            if main:  # after the resume checks: a refused resume leaves the saved sweep as it was
+                write_record()
             for i, d in enumerate(folders):  # episodes logged after the checkpoint are replayed
                 if os.path.exists(os.path.join(d, "episodes.csv")):
                     logs[i] = metrics.EpisodeLog.read_csv(os.path.join(d, "episodes.csv"), S)

@@ -49,7 +49,8 @@ def saved_base(out: str) -> dict:
 def check_same_sweep(saved: dict, configs: list[dict], keys: list[str], values: list[dict], out: str) -> None:
     """``--resume`` continues the sweep saved in ``out`` only: the same swept keys in the same order, the same
     values (so configuration ``c`` is the ``c``-th of the checkpoints' ``[C, S]`` state) and the same other
-    settings but for those a resumed run may change (:data:`train.config.RESUME_FREE`)."""
+    settings but for those a resumed run may change (:data:`train.config.RESUME_FREE`, and ``total_steps``, which
+    the caller checks against the checkpoint as for a run)."""
     saved_keys = list(saved["sweep"])
     saved_values = [c["values"] for c in saved["configurations"]]
     if saved_keys != keys or saved_values != values:
@@ -58,7 +59,7 @@ def check_same_sweep(saved: dict, configs: list[dict], keys: list[str], values: 
                          f"{', '.join(saved_keys)}); a sweep resumes only with the same --sweep options in the same "
                          f"order ({given}), or with none; start a different sweep in another --out")
     base = {**defaults_for(saved["base"]["algo"]), **saved["base"]}
-    ignore = (*RESUME_FREE, *keys, "env")
+    ignore = (*RESUME_FREE, *keys, "env", "total_steps")  # a new budget: train.run_folder.check_new_budget
     diff = {k: (base.get(k), configs[0][k]) for k in configs[0] if k not in ignore and base.get(k) != configs[0][k]}
     env_now = {k: v for k, v in configs[0]["env"].items() if "env." + k not in keys}
     env_saved = {k: v for k, v in (base.get("env") or {}).items() if "env." + k not in keys}
@@ -66,5 +67,5 @@ def check_same_sweep(saved: dict, configs: list[dict], keys: list[str], values: 
         diff["env"] = (env_saved, env_now)
     if diff:
         raise ValueError(f"--resume with a different configuration than the saved sweep: {diff}; resume with the "
-                         "same options (the saved sweep.json is used when none are given; only --checkpoint-every "
-                         "and --eval-episodes may change) or start a new --out")
+                         "same options (the saved sweep.json is used when none are given; only --steps, "
+                         "--checkpoint-every and --eval-episodes may change) or start a new --out")
