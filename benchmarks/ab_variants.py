@@ -11,6 +11,7 @@ least disturbed estimate. Variants are package copies with renamed imports:
     python benchmarks/ab_variants.py --snapshot new
     python benchmarks/ab_variants.py base new --scenarios merge roundabout
     python benchmarks/ab_variants.py base new --check        # same random rollouts? (512 envs)
+    python benchmarks/ab_variants.py base new --scenarios highway-v0 merge-v0 --envs 64   # traffic tasks too
 
 ``--snapshot NAME`` copies ``envs_jax`` to ``/tmp/variants/ev_NAME`` (``--dir`` to change).
 The name ``work`` times the working tree's ``envs_jax`` itself.
@@ -49,12 +50,24 @@ def snapshot(name: str, directory: str) -> str:
     return dst
 
 
+def is_task(name: str) -> bool:
+    """highway-env's traffic tasks (``highway-v0``, ...) as opposed to the authors' two-agent scenarios."""
+    return "-v" in name
+
+
+def auto_reset(pkg, name: str):
+    """The auto-reset wrapper env_throughput.py uses for ``name``."""
+    from env_throughput import TaskAutoReset
+
+    return TaskAutoReset if is_task(name) else pkg.AutoResetWrapper
+
+
 def runner(pkg, name: str, num_envs: int, num_steps: int):
     """benchmarks/env_throughput.py's jitted roll-out, built from package ``pkg`` (a variant of envs_jax)."""
     from env_throughput import jax_runner
 
     wrappers = importlib.import_module(pkg.__name__ + ".wrappers")
-    return jax_runner(pkg.make(name), num_envs, num_steps, pkg.AutoResetWrapper, wrappers.random_actions)
+    return jax_runner(pkg.make(name), num_envs, num_steps, auto_reset(pkg, name), wrappers.random_actions)
 
 
 def trajectories(pkg, name: str, num_envs: int, num_steps: int):
@@ -62,7 +75,7 @@ def trajectories(pkg, name: str, num_envs: int, num_steps: int):
     import jax
 
     env = pkg.make(name)
-    wrapped = pkg.AutoResetWrapper(env)
+    wrapped = auto_reset(pkg, name)(env)
     params = env.default_params
     policy = importlib.import_module(pkg.__name__ + ".wrappers").random_actions(env)
 
@@ -75,7 +88,7 @@ def trajectories(pkg, name: str, num_envs: int, num_steps: int):
             action = jax.vmap(policy)(jax.random.split(k_act, num_envs), obs)
             obs, state, reward, cost, done, _ = jax.vmap(wrapped.step, in_axes=(0, 0, 0, None))(
                 jax.random.split(k_step, num_envs), state, action, params)
-            e = state.env_state
+            e = state if is_task(name) else state.env_state
             return (obs, state), dict(obs=obs, reward=reward, cost=cost, done=done, x=e.x, y=e.y, heading=e.heading,
                                       speed=e.speed, lane=e.lane, target_lane=e.target_lane, crashed=e.crashed,
                                       impact=e.impact)
