@@ -11,6 +11,7 @@ from envs_jax.env import DrivingEnv, EnvParams, EnvState
 from envs_jax.registry import available_scenarios, available_tasks, make, register, register_task
 from envs_jax.scenarios.highway import make_highway
 from envs_jax.scenarios.intersection import Intersection
+from envs_jax.scenarios.intersection_continuous import make_intersection_continuous
 from envs_jax.scenarios.intersection_traffic import make_intersection
 from envs_jax.scenarios.merge import Merge
 from envs_jax.scenarios.merge_cavs import make_merge_cavs
@@ -33,6 +34,7 @@ register_task("roundabout-v0", make_roundabout)
 register_task("racetrack-v0", make_racetrack)
 register_task("intersection-v0", make_intersection)
 register_task("intersection-multi-agent-v0", make_intersection)
+register_task("intersection-v1", make_intersection_continuous)
 
 __all__ = ["make", "available_scenarios", "available_tasks", "register", "register_task", "DrivingEnv", "EnvParams",
            "EnvState", "AutoResetWrapper", "rollout"]

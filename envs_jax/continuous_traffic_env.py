@@ -56,13 +56,7 @@ class ContinuousTrafficEnv(TrafficEnv):
 
     def _decide(self, st, action, params):
         """``ContinuousAction.act`` of every agent: store its acceleration and steering."""
-        idx = jnp.asarray(self.controlled)
-        dtype = st.x.dtype
-        acc, steer = jax.vmap(lambda a: Veh.continuous_action(
-            a.astype(dtype), self.longitudinal, self.lateral, params.acceleration_range,
-            params.steering_range))(action)
-        return st.replace(acceleration=st.acceleration.at[idx].set(acc.astype(dtype)),
-                          steering=st.steering.at[idx].set(steer.astype(dtype)))
+        return store_continuous_actions(self, st, action, params)
 
     def _step(self, key, state, action, params, record):
         obs, state, reward, cost, done, info, trajectory = super()._step(key, state, action, params, record)
@@ -87,3 +81,14 @@ class ContinuousTrafficEnv(TrafficEnv):
         if not jnp.issubdtype(a.dtype, jnp.floating):
             a = a.astype(jnp.float32)
         return jnp.clip(jnp.nan_to_num(a, nan=0.0, posinf=1.0, neginf=-1.0), -1.0, 1.0)
+
+
+def store_continuous_actions(env, st, action, params):
+    """``ContinuousAction.act`` of every controlled vehicle of ``env``: acceleration and steering stored in ``st``."""
+    idx = jnp.asarray(env.controlled)
+    dtype = st.x.dtype
+    acc, steer = jax.vmap(lambda a: Veh.continuous_action(
+        a.astype(dtype), env.longitudinal, env.lateral, params.acceleration_range,
+        params.steering_range))(action)
+    return st.replace(acceleration=st.acceleration.at[idx].set(acc.astype(dtype)),
+                      steering=st.steering.at[idx].set(steer.astype(dtype)))

@@ -99,7 +99,7 @@ def make(name: str, env_config: dict | None = None, action_mode: str | None = No
         raise ValueError(f"{name}: simulation_frequency and policy_frequency must be integers with "
                          f"0 < policy_frequency <= simulation_frequency, got {sim} and {pol}")
     values = {k: _check_value(name, params, k, v) for k, v in values.items()}
-    _check_ranges(name, params, values)
+    check_ranges(name, params, values)
     params = params.replace(**values)
     return DrivingEnv(scenario, sim, pol, params)
 
@@ -142,7 +142,7 @@ _RANGES = {
 }
 
 
-def _check_ranges(name: str, params, values: dict) -> None:
+def check_ranges(name: str, params, values: dict) -> None:
     """Reject overrides outside their physical range (``ValueError`` naming the key and the allowed range)."""
     for key, value in values.items():
         if key not in _RANGES or value is None:

@@ -131,13 +131,15 @@ def yielding_side(priority, x, y, heading):
     return jnp.where(pi != pj, pi < pj, front_ij > front_ji)
 
 
-def enforce_road_rules(road: Road, st: TrafficState, yielding, yield_timer, priority, is_idm, order=None):
+def enforce_road_rules(road: Road, st: TrafficState, yielding, yield_timer, priority, is_idm, order=None,
+                       prediction=None):
     """One ``enforce_road_rules``: ``(target_speed, yielding, yield_timer)`` after releases and new yields.
 
     ``priority``: static ``[lanes]`` lane priorities; ``is_idm``: static ``[V]`` flags of the slots
     that can be made to yield; ``order``: ``[V]`` positions in ``road.vehicles`` (default: slot order),
     which decide the pair's ``v1`` and so the vehicle that yields on an exact front-distance tie
-    (vehicles face to face on one axis-aligned line).
+    (vehicles face to face on one axis-aligned line); ``prediction``: the ``(x, y, heading)`` ``[V, T]``
+    predictions at ``PREDICTION_TIMES`` (default :func:`predict_along_route` for every slot).
     """
     speed_limit = road.lanes.col("speed_limit")[st.lane]
     release = st.alive & yielding & (yield_timer >= YIELD_DURATION * REGULATION_FREQUENCY)
@@ -146,7 +148,7 @@ def enforce_road_rules(road: Road, st: TrafficState, yielding, yield_timer, prio
     yielding = yielding & ~release
 
     times = jnp.asarray(PREDICTION_TIMES, st.x.dtype)
-    px, py, ph = predict_along_route(road, st, times)
+    px, py, ph = predict_along_route(road, st, times) if prediction is None else prediction
     n = st.x.shape[0]
     if order is None:
         upper = jnp.asarray(np.triu(np.ones((n, n), bool), 1))

@@ -44,7 +44,8 @@ class TrafficAutoResetWrapper:
         return getattr(self.env, name)
 
     def _flat(self, obs):
-        return jnp.reshape(obs, obs.shape[:-2] + (-1,))
+        per_agent = len(self.env.obs_shape) - 1  # [n, F] Kinematics or [C, H, W] occupancy grids
+        return jnp.reshape(obs, obs.shape[:obs.ndim - per_agent] + (-1,))
 
     def reset(self, key, params=None):
         obs, st = self.env.reset(key, params)

@@ -206,11 +206,15 @@ class TrafficEnv:
         st = drivers.road_act(self.road, st, self.is_idm, self.is_mdp, params.idm, obstacles)
         return self._road_step(st, obstacles, dt)
 
+    def _kinematics(self, st: TrafficState, dt):
+        """Every slot's ``step(dt)``: ``(x, y, heading, speed, crashed, steering, acceleration)`` and a dict of
+        further state fields it updates (none for ``Vehicle.step``)."""
+        return Veh.bicycle_step(st.x, st.y, st.heading, st.speed, st.steering, st.acceleration, st.crashed,
+                                st.impact[:, 0], st.impact[:, 1], st.has_impact, dt), {}
+
     def _road_step(self, st: TrafficState, obstacles, dt):
         """``road.step(dt)``: kinematics of the alive slots, their lanes, then the collision loop."""
-        x, y, h, v, crashed, steering, acceleration = Veh.bicycle_step(
-            st.x, st.y, st.heading, st.speed, st.steering, st.acceleration, st.crashed,
-            st.impact[:, 0], st.impact[:, 1], st.has_impact, dt)
+        (x, y, h, v, crashed, steering, acceleration), extra = self._kinematics(st, dt)
         alive = st.alive
         keep = lambda new, old: jnp.where(alive, new, old)
         x, y, h, v = keep(x, st.x), keep(y, st.y), keep(h, st.heading), keep(v, st.speed)
@@ -224,7 +228,8 @@ class TrafficEnv:
         impact, has_impact, crashed = self._collide(st, x, y, h, v, alive, crashed, ob, dt)
         return st.replace(x=x, y=y, heading=h, speed=v, crashed=crashed, on_road=on_road, lane=lane,
                           steering=keep(steering, st.steering), acceleration=keep(acceleration, st.acceleration),
-                          impact=impact, has_impact=has_impact, timer=timer)
+                          impact=impact, has_impact=has_impact, timer=timer,
+                          **{k: keep(a, getattr(st, k)) for k, a in extra.items()})
 
     def _collide(self, st, x, y, h, v, alive, crashed, obstacles, dt):
         """The collision loop over the slots in list order (= slot order here)."""

@@ -41,14 +41,21 @@ def resolved_configs() -> dict:
     cases = []
     for scenario in SCENARIOS:
         for algo, sp in ALGOS.items():
-            if sp.action != SCENARIOS[scenario]:
+            if sp.action not in (SCENARIOS[scenario], "both"):
                 continue
             cases.append([f"--scenario={scenario}", f"--algo={algo}"])
             for preset in sp.presets:
                 cases.append([f"--scenario={scenario}", f"--algo={algo}", f"--preset={preset}"])
     cases += [["--scenario=highway", "--agents=3"], ["--scenario=highway", "--agents=4", "--hierarchy=0,1|2,3"],
               ["--scenario=highway", "--agents=3", "--hierarchy=0|1|2", "--preset=authors"],
-              ["--scenario=highway", "--agents=2", "--algo=sq"]]
+              ["--scenario=highway", "--agents=2", "--algo=sq"],
+              ["--scenario=highway", "--agents=3", "--algo=mappo-l"],
+              ["--scenario=highway", "--agents=4", "--algo=macpo", "--hierarchy=0,1,2,3"],
+              ["--scenario=highway", "--agents=3", "--algo=mappo-l", "--hierarchy=0|1|2"],
+              ["--scenario=merge-cavs", "--agents=4", "--algo=mappo-l"],
+              ["--scenario=racetrack-v0", "--algo=cs-maddpg", "--agents=4", "--hierarchy=0,1|2,3"],
+              ["--scenario=racetrack-v0", "--algo=s-maddpg", "--agents=2", "--hierarchy=1|0"],
+              ["--scenario=racetrack-v0", "--algo=c-maddpg", "--hierarchy=0|1|2"]]
     out = {}
     for argv in cases:
         try:

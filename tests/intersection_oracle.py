@@ -16,7 +16,7 @@ highway-env is imported here only; it must never be imported outside ``tests/``.
 from __future__ import annotations
 
 import numpy as np
-from highway_env.envs.intersection_env import IntersectionEnv, MultiAgentIntersectionEnv
+from highway_env.envs.intersection_env import ContinuousIntersectionEnv, IntersectionEnv, MultiAgentIntersectionEnv
 from highway_env.vehicle.behavior import IDMVehicle
 
 from tests.traffic_oracle import lane_numbers
@@ -68,8 +68,9 @@ class ScriptedRandom:
         return int(self.destination.pop(0))
 
 
-def classes(k: int):
-    base = IntersectionEnv if k == 1 else MultiAgentIntersectionEnv
+def classes(k: int, continuous: bool = False):
+    """highway-env's class of the task (``ContinuousIntersectionEnv`` for ``intersection-v1``, any K)."""
+    base = ContinuousIntersectionEnv if continuous else IntersectionEnv if k == 1 else MultiAgentIntersectionEnv
 
     class Scripted(base):
         script = None  # set on the instance before the scripted reset
@@ -105,16 +106,19 @@ def oracle_config(k: int, **extra) -> dict:
     return cfg
 
 
-def run_oracle(k: int, attempts_reset: list, z_ego, destination, step_attempts: list, actions, config: dict) -> dict:
+def run_oracle(k: int, attempts_reset: list, z_ego, destination, step_attempts: list, actions, config: dict,
+               continuous: bool = False) -> dict:
     """An episode of highway-env's intersection with the JAX draws; records as in the module docstring.
 
     ``attempts_reset``: the reset's spawn attempts (initial ones, then the challenger), each a dict
     ``u, route, z_position, z_speed, u_delta, slot`` (``slot`` -1: not spawned in JAX) and optionally
-    ``pool_full``; ``step_attempts``: one such dict per step.
+    ``pool_full``; ``step_attempts``: one such dict per step. ``continuous``: ``intersection-v1``
+    (``actions`` ``[T, K, d]`` floats; the agents' lateral speed and yaw rate are recorded too, 0 for
+    vehicles without them, as their missing target speed).
     """
     saved = {a: getattr(IDMVehicle, a) for a in IDM_ATTRS}
     try:
-        env = classes(k)(config=config)
+        env = classes(k, continuous)(config=config)
         env.script = ScriptedRandom(list(attempts_reset) + list(step_attempts), z_ego, destination)
         env.spawn_log, env.pool_skips = [], []
         env.reset(seed=0)
@@ -131,7 +135,9 @@ def run_oracle(k: int, attempts_reset: list, z_ego, destination, step_attempts: 
                     "crashed": [v.crashed for v in vs],
                     "lane": [lanes[(v.lane_index[0], v.lane_index[1], int(v.lane_index[2]))] for v in vs],
                     "yielding": [bool(getattr(v, "is_yielding", False)) for v in vs],
-                    "target_speed": [v.target_speed for v in vs]}
+                    "target_speed": [getattr(v, "target_speed", 0.0) for v in vs],
+                    "lateral_speed": [getattr(v, "lateral_speed", 0.0) for v in vs],
+                    "yaw_rate": [getattr(v, "yaw_rate", 0.0) for v in vs]}
 
         road_step = env.road.step
 
@@ -145,7 +151,10 @@ def run_oracle(k: int, attempts_reset: list, z_ego, destination, step_attempts: 
                "reward": [], "terminated": [], "env_terminated": [], "truncated": [], "after_step": [],
                "env_reward": []}
         for a in np.asarray(actions):
-            act = int(a[0]) if k == 1 else tuple(int(u) for u in a)
+            if continuous:
+                act = np.asarray(a[0], np.float64) if k == 1 else tuple(np.asarray(u, np.float64) for u in a)
+            else:
+                act = int(a[0]) if k == 1 else tuple(int(u) for u in a)
             obs, reward, terminated, truncated, info = env.step(act)
             out["obs"].append(np.asarray(obs))
             out["reward"].append([env._agent_reward(act, v) for v in env.controlled_vehicles])

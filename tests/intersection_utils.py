@@ -8,7 +8,6 @@ import numpy as np
 
 import envs_jax
 
-FRAME_KEYS = ("x", "y", "heading", "speed", "crashed", "lane", "alive", "yielding", "target_speed")
 DRAW_KEYS = ("u", "route", "z_position", "z_speed", "u_delta")
 
 
@@ -71,7 +70,8 @@ def step_records(res) -> list:
 
 def run_jax(name: str, seed: int, actions, **overrides) -> dict:
     env, fn = episode_fn(name, bool(jax.config.jax_enable_x64), overrides)
-    draws, events, obs0, st0, out = jax.device_get(fn(jax.random.key(seed), jnp.asarray(actions, jnp.int32)))
+    dtype = jnp.int32 if env.discrete else jnp.float64 if jax.config.jax_enable_x64 else jnp.float32
+    draws, events, obs0, st0, out = jax.device_get(fn(jax.random.key(seed), jnp.asarray(actions, dtype)))
     done = np.asarray(out["done"])
     length = int(np.argmax(done) + 1) if done.any() else len(done)
     res = {"env": env, "draws": draws, "events": events, "st0": st0, "length": length,
@@ -81,7 +81,7 @@ def run_jax(name: str, seed: int, actions, **overrides) -> dict:
     res["spawn"] = {k: np.asarray(v)[:length] for k, v in out["spawn"].items()}
     res["step_draws"] = {k: np.asarray(v)[:length] for k, v in out["draws"].items()}
     frames = {}
-    for k in FRAME_KEYS:
+    for k in out["traj"]:  # the fields of env._record
         v = np.asarray(out["traj"][k])[:length]
         frames[k] = v.reshape(-1, v.shape[-1])
     res["frames"] = frames

@@ -192,6 +192,7 @@ def test_onpolicy_resume_on_two_devices_is_bit_identical(tmp_path):
 # change size).
 
 
+@pytest.mark.slow  # long: the default suite keeps its 20-minute budget (docs/performance.md)
 def test_onpolicy_run_trained_further_equals_the_longer_run(tmp_path):
     from train.__main__ import main
 
@@ -216,6 +217,7 @@ def test_onpolicy_run_trained_further_equals_the_longer_run(tmp_path):
     assert _leaves_equal(straight["state"], resumed)
 
 
+@pytest.mark.slow  # long: the default suite keeps its 20-minute budget (docs/performance.md)
 def test_training_further_is_refused_where_it_would_not_be_exact(tmp_path, small_config):
     # merge CSQ: 800 steps in chunks of 200; the default buffer (500000) holds min(buffer_size, total_steps)
     out = str(tmp_path / "c")

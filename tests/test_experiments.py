@@ -22,6 +22,7 @@ def _read(path):
         return json.load(f)
 
 
+@pytest.mark.slow  # long: the default suite keeps its 20-minute budget (docs/performance.md)
 def test_study_end_to_end_resume_and_keep(tmp_path):
     out = str(tmp_path / "study")
     # 1. an interrupted run: one chunk of three, then stop

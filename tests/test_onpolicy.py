@@ -57,7 +57,7 @@ def test_sequential_factor_is_previous_agents_ratio():
     st0 = MAPPOL(PPOConfig(**cfg)).init(jax.random.PRNGKey(0))
     # ratio 1 at the start: behaviour log-probs equal to the current policy's
     agent = MAPPOL(PPOConfig(**cfg))
-    mean, std = agent._all_means(st0, agent.normalize_obs(st0, traj.obs.reshape(-1, 2, 8)))
+    mean, std = agent._all_dists(st0, agent.normalize_obs(st0, traj.obs.reshape(-1, 2, 8)))
     from jaxsmarl.gaussian import gaussian_log_prob
     logp = gaussian_log_prob(traj.action.reshape(-1, 2, 1), mean, std).reshape(8, 4, 2)
     traj = traj.replace(logp=logp)
@@ -111,7 +111,7 @@ def test_config_rejects_partial_cycles():
     with pytest.raises(ValueError, match="multiple of num_minibatches"):
         load_config("racetrack", "mappo-l", {"num_envs": 16, "rollout_length": 8, "total_steps": 1280,
                                               "chunk_steps": 128, "num_minibatches": 3})
-    with pytest.raises(ValueError, match="needs continuous actions"):
+    with pytest.raises(ValueError, match="on discrete actions takes --scenario highway or merge-cavs"):
         load_config("merge", "macpo")
 
 

@@ -112,7 +112,7 @@ def test_seed_loop_runs_each_seed_by_itself():
         seed_loop(fn, in_axes=(1, 0, None))(p, x, 2.0)
 
 
-@pytest.mark.parametrize("algo", ["mappo-l", "cs-maddpg"])
+@pytest.mark.parametrize("algo", [pytest.param("mappo-l", marks=pytest.mark.slow), "cs-maddpg"])
 def test_training_chunks_run_seeds_in_sequence(algo):
     # Seeds 0 and 1 of a 3-seed run equal those of a 2-seed run, bit for bit: each seed is computed by the same
     # unbatched program (batched programs of 2 and 3 seeds differ in round-off). One seed alone is not compared:

@@ -11,7 +11,17 @@ import json
 import os
 import sys
 
-from train.config import ALGOS, COMMON, COMMON_HELP, SCENARIOS, load_config, parse_set, preset_values, read_run_config
+from train.config import (
+    ALGOS,
+    COMMON,
+    COMMON_HELP,
+    SCENARIOS,
+    load_config,
+    parse_set,
+    preset_values,
+    read_run_config,
+    with_overrides,
+)
 
 
 def _keys_help() -> str:
@@ -55,7 +65,10 @@ examples:
   python -m train --set leader_rule=authors --set infeasible=argmax   # the authors' action rule
   python -m train --scenario racetrack --algo cs-maddpg --preset authors   # every coded option of theirs
   python -m train --scenario highway --agents 3 --hierarchy "0|1,2"   # CSQ, one leader, two followers
+  python -m train --scenario highway --agents 3 --algo mappo-l   # the no-hierarchy on-policy baseline
+  python -m train --scenario racetrack-v0 --agents 3 --algo cs-maddpg --hierarchy "0|1|2"   # a chain of three
   python -m train --sweep lr=[3e-4,1e-3,3e-3] --seeds 8   # 3 learning rates x 8 seeds in one program
+  python -m train --sweep env.collision_reward=[-1,-5] --set env.speed_reward=1   # environment parameters
   python -m train --seeds 8 --coordinator-address 127.0.0.1:12355 --num-processes 2 --process-id 0   # and id 1
                                                         # (several processes and hosts: docs/distributed.md)
 
@@ -74,15 +87,16 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--scenario", choices=list(SCENARIOS), default=None,
                    help="driving scenario (default merge): merge, roundabout, highway (highway-v0 with K "
                         "controlled vehicles) and merge-cavs (MARL_CAVs' merge, up to K CAVs) have discrete actions, "
-                        "intersection and racetrack continuous ones; the algorithm must match")
+                        "intersection, racetrack and racetrack-v0 (racetrack-v0 with K controlled vehicles) continuous "
+                        "ones; the algorithm must match")
     p.add_argument("--algo", choices=list(ALGOS), default=None, help=_algos_help() + " (default csq)")
     p.add_argument("--agents", type=int, default=None, metavar="K",
                    help="controlled agents (default: the scenario's, 2; --scenario highway takes 2..8, CSQ up to 4; "
-                        "merge-cavs 3 or 4, the most CAVs of its easy or medium traffic)")
+                        "merge-cavs 3 or 4, the most CAVs of its easy or medium traffic; racetrack-v0 2..8, default 3)")
     p.add_argument("--hierarchy", default=None, metavar="LEVELS",
-                   help="who decides before whom (CSQ, SQ): levels of agent indices, '|' between levels and ',' "
-                        "within one, e.g. '0|1|2' (vertical chain, the default), '0,1|2' (two leaders), '0,1,2' "
-                        "(no hierarchy)")
+                   help="who decides before whom (CSQ, SQ, S-MADDPG, CS-MADDPG): levels of agent indices, '|' "
+                        "between levels and ',' within one, e.g. '0|1|2' (vertical chain, the default), '0,1|2' (two "
+                        "leaders), '0,1,2' (no hierarchy, the only one MAPPO-L and MACPO take)")
     p.add_argument("--seeds", type=int, default=None, help="number of seeds trained in parallel (default 8)")
     p.add_argument("--seed", type=int, default=None, help="base random seed (default 0)")
     p.add_argument("--steps", type=int, default=None,
@@ -95,7 +109,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--sweep", action="append", default=[], metavar="KEY=[V1,V2,...]",
                    help="train every combination of these values (repeatable), each with all the seeds, in one "
                         "compiled program; real-valued keys only (learning rates, thresholds, multiplier rates, "
-                        "exploration, loss weights); results per configuration in <out>/configs/")
+                        "exploration, loss weights) and environment parameters as env.<field> (e.g. "
+                        "env.collision_reward); results per configuration in <out>/configs/")
     p.add_argument("--preset", default=None, metavar="NAME",
                    help="a named set of values applied after the config file and before --set; 'authors' turns on "
                         "every coded option of the authors' implementation (listed below)")
@@ -105,7 +120,8 @@ def parse_args(argv=None) -> argparse.Namespace:
                    help="environment steps between checkpoints, a multiple of --chunk-steps (default 5000)")
     p.add_argument("--resume", action="store_true",
                    help="continue the run in --out from its newest checkpoint (same configuration; with a larger "
-                        "--steps, train a finished run further exactly as a longer run would have)")
+                        "--steps, train a finished run further exactly as a longer run would have); on a sweep's "
+                        "folder, continue that sweep")
     p.add_argument("--overwrite", action="store_true", help="delete an existing run in --out and start over")
     p.add_argument("--eval-episodes", type=int, default=None,
                    help="greedy evaluation episodes per seed after training (default 10; 0 skips)")
@@ -139,12 +155,15 @@ def build_config(args: argparse.Namespace) -> dict:
         if v is not None:
             overrides[key] = v
     if args.resume and args.out:
-        if os.path.exists(os.path.join(args.out, "config.json")):
-            # continue with the saved configuration; explicit options must agree
-            base = read_run_config(args.out)
+        from train.sweep_folder import is_sweep_folder, saved_base
+
+        sweep_folder = is_sweep_folder(args.out)
+        if sweep_folder or os.path.exists(os.path.join(args.out, "config.json")):
+            # continue with the saved configuration (a sweep's: its base); explicit options must agree
+            base = saved_base(args.out) if sweep_folder else read_run_config(args.out)
             if args.preset is not None:
                 base.update(preset_values(args.algo or base["algo"], args.preset))
-            base.update(overrides)
+            base = with_overrides(base, overrides)
             return load_config(args.scenario or base["scenario"], args.algo or base["algo"], base)
     return load_config(args.scenario, args.algo, overrides, config_file=args.config, preset=args.preset)
 
@@ -171,15 +190,19 @@ def main(argv=None) -> int:
         if args.print_config:
             print(json.dumps(cfg, indent=2))
             return 0
-        if args.sweep:
+        from train.sweep_folder import is_sweep_folder, read_sweep
+
+        resume_sweep = args.resume and args.out is not None and is_sweep_folder(args.out)
+        if args.sweep or resume_sweep:
             from train.sweep import parse_sweep, run_sweep, sweep_configs
 
-            sweep = parse_sweep(args.sweep)
-            sweep_configs(cfg, sweep)  # refuses keys that cannot be swept before anything is compiled
-            if args.resume:
-                raise ValueError("--resume does not continue a sweep; run the sweep again into a new --out")
             out = args.out or os.path.join("runs", f"{cfg['scenario']}_{cfg['algo']}_sweep")
-            res = run_sweep(cfg, sweep, out, overwrite=args.overwrite, verbose=not args.quiet)
+            if args.resume and not resume_sweep:
+                read_sweep(out)  # says that the folder holds no sweep
+            # --resume alone continues the saved sweep; with --sweep options they must be the saved ones
+            sweep = parse_sweep(args.sweep) if args.sweep else read_sweep(out)["sweep"]
+            sweep_configs(cfg, sweep)  # refuses keys that cannot be swept before anything is compiled
+            res = run_sweep(cfg, sweep, out, resume=args.resume, overwrite=args.overwrite, verbose=not args.quiet)
             if not args.quiet:
                 print(f"sweep of {len(res['configs'])} configurations x {cfg['num_seeds']} seeds: {out}/sweep.json, "
                       f"{out}/configs/<configuration>/, {out}/figures/")

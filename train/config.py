@@ -17,6 +17,7 @@ from __future__ import annotations
 import dataclasses
 import difflib
 import json
+import math
 import os
 from typing import Any, Callable
 
@@ -24,21 +25,26 @@ from jaxsmarl.options import TERMINAL_MASKS, Bool, Choice, Int, Num, PerAgent, S
 
 __all__ = ["COMMON", "COMMON_HELP", "AlgoSpec", "ALGOS", "SCENARIOS", "SCENARIO_AGENTS", "CONFIG_DIR", "DEFAULTS",
            "HELP", "register", "spec", "parse_set", "RESUME_FREE", "defaults_for", "help_for", "load_config",
-           "read_run_config", "validate", "config_path",
+           "read_run_config", "validate", "config_path", "with_overrides", "env_values", "ENV_PREFIX",
            "preset_values", "LEGACY", "MATMUL_PRECISIONS", "TERMINAL_MASKS",
            "Int", "Num", "Choice", "Bool", "PerAgent", "Sizes"]
+
+# an override ``env.<field>`` sets one environment parameter (train.env_params)
+ENV_PREFIX = "env."
 
 CONFIG_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), "configs")
 
 # Known scenarios and their action type (checked again against the env when it is built).
 SCENARIOS = {"merge": "discrete", "roundabout": "discrete", "intersection": "continuous", "racetrack": "continuous",
-             "highway": "discrete", "merge-cavs": "discrete"}
+             "highway": "discrete", "merge-cavs": "discrete", "racetrack-v0": "continuous"}
 # Controlled agents per scenario: (default, lowest, highest) for the common key `agents`. `highway` is
 # highway-env's highway-v0 with `agents` controlled vehicles (envs_jax.make("highway-v0", controlled_vehicles=K)).
 # `merge-cavs` is MARL_CAVs' merge (envs_jax.make("merge-cavs-v0")) at the traffic density whose most CAVs are K:
 # K = 3 easy (1-3 CAVs per episode), K = 4 medium (2-4); absent agents are terminated with zero reward and cost.
+# `racetrack-v0` is highway-env's racetrack-v0 with `agents` controlled vehicles (continuous steering, per-agent
+# reward and cost; envs_jax.make("racetrack-v0", controlled_vehicles=K)).
 SCENARIO_AGENTS = {"merge": (2, 2, 2), "roundabout": (2, 2, 2), "intersection": (2, 2, 2), "racetrack": (2, 2, 2),
-                   "highway": (2, 2, 8), "merge-cavs": (3, 3, 4)}
+                   "highway": (2, 2, 8), "merge-cavs": (3, 3, 4), "racetrack-v0": (3, 2, 8)}
 
 COMMON: dict[str, Any] = {
     "scenario": "merge",
@@ -53,6 +59,7 @@ COMMON: dict[str, Any] = {
     "eval_episodes": 10,
     "eval_max_steps": 200,
     "matmul_precision": "highest",
+    "env": {},
 }
 
 # Keys whose change does not alter a run's training trajectory: a resumed run, and a study keeping a finished run,
@@ -67,9 +74,9 @@ MATMUL_PRECISIONS = ("highest", "high", "default")
 
 COMMON_HELP: dict[str, str] = {
     "scenario": "driving scenario: merge | roundabout | highway | merge-cavs (discrete actions); intersection | "
-                "racetrack (continuous)",
+                "racetrack | racetrack-v0 (continuous)",
     "agents": "controlled agents K (null: the scenario's default; merge, roundabout, intersection, racetrack: 2; "
-              "highway: 2, up to 8; merge-cavs: 3 (easy traffic) or 4 (medium))",
+              "highway: 2, up to 8; merge-cavs: 3 (easy traffic) or 4 (medium); racetrack-v0: 3, 2 to 8)",
     "algo": "training algorithm (see --help for the list)",
     "total_steps": "environment steps per seed, over all its parallel envs (defaults: the authors' budgets)",
     "num_seeds": "independent training runs, vmapped in one program",
@@ -81,23 +88,55 @@ COMMON_HELP: dict[str, str] = {
     "eval_max_steps": "step cap of one evaluation episode",
     "matmul_precision": "float32 matrix products in the training programs: highest (full float32 on every "
                         "backend) | high | default (the backend's own: TF32 or bf16 passes on GPUs and TPUs)",
+    "env": "environment parameters replacing the scenario's defaults (fields of its params: reward weights, "
+           "costs, speed ranges; real-valued, default shapes); one at a time: --set env.collision_reward=-2",
 }
 
 
 # Validation rules (jaxsmarl.options): each returns the normalised value or raises ValueError naming the key and
 # what is allowed.
 
+def env_values(key: str, v: Any) -> dict:
+    """The ``env`` key: a JSON object of parameter name -> a finite number or a (nested) list of them, numbers as
+    floats. Which names the scenario has, and their shapes, are checked when its env is built
+    (:mod:`train.env_params`)."""
+    def real(x):
+        if isinstance(x, (list, tuple)) and x:
+            return [real(y) for y in x]
+        if isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x):
+            return float(x)
+        raise ValueError(f"'{key}' values must be finite numbers or lists of them, got {x!r}")
+
+    if not isinstance(v, dict) or not all(isinstance(k, str) and k for k in v):
+        raise ValueError(f"'{key}' must be a JSON object of environment parameter name: value, e.g. "
+                         f"{{\"collision_reward\": -2}}, got {v!r}")
+    return {k: real(x) for k, x in v.items()}
+
+
 COMMON_RULES: dict[str, Callable] = {
     "total_steps": Int(1), "num_seeds": Int(1), "seed": Int(0), "num_envs": Int(1), "chunk_steps": Int(1),
     "checkpoint_every": Int(0), "eval_episodes": Int(0), "eval_max_steps": Int(1),
     "matmul_precision": Choice(MATMUL_PRECISIONS),
+    "env": env_values,
 }
+
+
+def with_overrides(cfg: dict, overrides: dict) -> dict:
+    """``cfg`` updated by ``overrides``; an override ``env.<field>`` sets that field inside ``cfg["env"]`` (after
+    the overrides' own ``env`` object, if given)."""
+    out = {**cfg, **{k: v for k, v in overrides.items() if not k.startswith(ENV_PREFIX)}}
+    fields = {k[len(ENV_PREFIX):]: v for k, v in overrides.items() if k.startswith(ENV_PREFIX)}
+    if fields:
+        base = out.get("env") or {}
+        out["env"] = {**(base if isinstance(base, dict) else {}), **fields}
+    return out
 
 
 # ----------------------------------------------------------------------------------------------------------
 # The registry.
 
 LOOPS = ("offpolicy", "onpolicy")  # the training loops an algorithm can run in (train.build)
+ACTION_KINDS = ("discrete", "continuous", "both")  # the action spaces an algorithm takes
 
 
 @dataclasses.dataclass(frozen=True)
@@ -110,11 +149,13 @@ class AlgoSpec:
     that drives it, ``"offpolicy"`` (:mod:`train.offpolicy`) or ``"onpolicy"`` (:mod:`train.onpolicy`), joined by
     :func:`train.build.make_train`; ``seeds_in_sequence_on_cpu``: on the CPU each device runs its seeds one after
     another, cheaper there for these learners' updates (docs/performance.md);
-    ``presets``: name -> values that ``--preset NAME`` sets (after the JSON file, before ``--set``).
+    ``presets``: name -> values that ``--preset NAME`` sets (after the JSON file, before ``--set``);
+    ``flat_only``: a no-hierarchy baseline, which accepts the key ``hierarchy`` only as the flat one (all agents
+    on one level) and then drops it.
     """
 
     name: str
-    action: str  # "discrete" | "continuous"
+    action: str  # "discrete" | "continuous" | "both"
     summary: str
     defaults: dict
     help: dict
@@ -124,10 +165,11 @@ class AlgoSpec:
     check: Callable | None = None
     presets: dict = dataclasses.field(default_factory=dict)
     seeds_in_sequence_on_cpu: bool = False
+    flat_only: bool = False
 
     def __post_init__(self):
-        if self.action not in ("discrete", "continuous"):
-            raise ValueError(f"AlgoSpec {self.name}: action must be discrete or continuous")
+        if self.action not in ACTION_KINDS:
+            raise ValueError(f"AlgoSpec {self.name}: action must be discrete, continuous or both")
         if self.loop not in LOOPS:
             raise ValueError(f"AlgoSpec {self.name}: loop must be one of {', '.join(LOOPS)}, got {self.loop!r}")
         missing = [k for k in self.defaults if k not in self.help]
@@ -271,8 +313,9 @@ def load_config(scenario: str | None = None, algo: str | None = None, overrides:
     spec(algo)
     _check_action_type(scenario, algo)
     valid = defaults_for(algo)
+    _drop_flat_hierarchy(scenario, algo, overrides)
     for k in overrides:
-        if k not in valid:
+        if k not in valid and not (k.startswith(ENV_PREFIX) and len(k) > len(ENV_PREFIX)):
             raise _unknown_key(k, "the overrides", algo)
     cfg = dict(valid)
     path = config_file or config_path(scenario, algo)
@@ -284,15 +327,33 @@ def load_config(scenario: str | None = None, algo: str | None = None, overrides:
         cfg.update(data)
     if preset is not None:
         cfg.update(preset_values(algo, preset))
-    cfg.update(overrides)
+    cfg = with_overrides(cfg, overrides)
     cfg["scenario"], cfg["algo"] = scenario, algo
     return validate(cfg)
 
 
+def _drop_flat_hierarchy(scenario: str, algo: str, overrides: dict) -> None:
+    """A no-hierarchy baseline (``AlgoSpec.flat_only``) given ``hierarchy``: drop it when it is the flat one (one
+    level of every agent), else refuse it."""
+    if not spec(algo).flat_only or "hierarchy" not in overrides:
+        return
+    given = overrides.pop("hierarchy")
+    if given is None:
+        return
+    from jaxsmarl.hierarchy import flat, format_hierarchy, validate_hierarchy
+
+    k = _agents(scenario, overrides.get("agents"))
+    levels = validate_hierarchy(given, k)
+    if len(levels) != 1:
+        raise ValueError(f"'{algo}' is a no-hierarchy baseline (all {k} agents act at once) but hierarchy "
+                         f"'{format_hierarchy(levels)}' has {len(levels)} levels; leave --hierarchy out or give the "
+                         f"flat '{format_hierarchy(flat(k))}' (csq and sq train hierarchies)")
+
+
 def _check_action_type(scenario: str, algo: str) -> None:
     s = spec(algo)
-    if SCENARIOS[scenario] != s.action:
-        fits = [a for a, sp in ALGOS.items() if sp.action == SCENARIOS[scenario]]
+    if s.action not in (SCENARIOS[scenario], "both"):
+        fits = [a for a, sp in ALGOS.items() if sp.action in (SCENARIOS[scenario], "both")]
         scen = [n for n, t in SCENARIOS.items() if t == s.action]
         raise ValueError(
             f"scenario '{scenario}' has {SCENARIOS[scenario]} actions but algorithm '{algo}' needs {s.action} "

@@ -52,7 +52,8 @@ def next_steps(out: str, config: dict) -> str:
             resume,
             (f"python -m train.experiments --only {config['scenario']}",
              "every algorithm on this scenario: runs, figures, RESULTS.md")]
-    if config["scenario"] in ("highway", "merge-cavs"):  # the K-agent traffic tasks have no renderer and no study yet
+    # the K-agent traffic tasks have no renderer and no study yet
+    if config["scenario"] in ("highway", "merge-cavs", "racetrack-v0"):
         cmds = cmds[1:3]
     width = max(len(c) for c, _ in cmds)
     lines.append("next:")

@@ -11,7 +11,8 @@ Bookkeeping per env: ``alive[E, N]``: agent i has not terminated yet in the curr
 termination: a terminated agent is still simulated until the episode ends, but its later steps are inactive).
 The transition keeps the pre-reset next observation (``info["terminal_obs"]`` at the end of an episode), the
 agent's own ``terminated`` and the episode's ``done``, so GAE bootstraps through a time limit but not through a
-termination (:mod:`jaxsmarl.gae`).
+termination (:mod:`jaxsmarl.gae`). In an env with absent agents (``has_absent_agents``, ``info["alive"]``) a
+step is active only for the agents present in its episode, and ``present`` travels with the transition.
 """
 
 from __future__ import annotations
@@ -31,7 +32,7 @@ __all__ = ["Transition", "OnPolicyState", "make_onpolicy_train"]
 @flax.struct.dataclass
 class Transition:
     obs: jax.Array  # [..., N, D]
-    action: jax.Array  # [..., N, k] raw Gaussian sample
+    action: jax.Array  # [..., N, k] raw Gaussian sample, or [..., N] discrete action
     logp: jax.Array  # [..., N]
     reward: jax.Array  # [..., N]
     cost: jax.Array  # [..., N]
@@ -41,6 +42,7 @@ class Transition:
     active: jax.Array  # [..., N] the agent had not terminated before this step
     ep_returned: jax.Array  # [...] an episode ended (its statistics below are valid)
     ep_cost: jax.Array  # [..., N] that episode's cost per agent
+    present: Any = None  # [..., N] the agent drives in this step's episode (envs with absent agents only)
 
 
 @flax.struct.dataclass
@@ -62,6 +64,7 @@ def make_onpolicy_train(config: dict, env, agent) -> Trainer:
     if config["total_steps"] % cycle or config["chunk_steps"] % cycle:
         raise ValueError(f"total_steps and chunk_steps must be multiples of num_envs * rollout_length ({cycle})")
     n_agents = env.num_agents
+    absent = bool(getattr(env, "has_absent_agents", False))
 
     def init(key) -> OnPolicyState:
         k_agent, k_env, k_run = jax.random.split(key, 3)
@@ -73,12 +76,13 @@ def make_onpolicy_train(config: dict, env, agent) -> Trainer:
         key, k_act, k_env = jax.random.split(rs.key, 3)
         action, logp = agent.act(rs.agent, rs.obs, k_act)
         obs, env_state, reward, cost, done, info = jax.vmap(wrapped.step, in_axes=(0, 0, 0, None))(
-            jax.random.split(k_env, E), rs.env_state, jnp.clip(action, -1.0, 1.0), params)
+            jax.random.split(k_env, E), rs.env_state, agent.env_action(action), params)
         term = info["terminated"]
         next_obs = jnp.where(done[:, None, None], info["terminal_obs"], obs)
+        present = info["alive"] if absent else None  # presence is drawn per episode: this step's episode
         tr = Transition(obs=rs.obs, action=action, logp=logp, reward=reward, cost=cost, next_obs=next_obs,
-                        terminated=term, done=done, active=rs.alive, ep_returned=info["returned_episode"],
-                        ep_cost=info["episode_cost"])
+                        terminated=term, done=done, active=rs.alive if present is None else rs.alive & present,
+                        ep_returned=info["returned_episode"], ep_cost=info["episode_cost"], present=present)
         alive = jnp.where(done[:, None], True, rs.alive & ~term)
         rs = rs.replace(env_state=env_state, obs=obs, alive=alive, key=key, iteration=rs.iteration + 1)
         return rs, (tr, metrics.episode_record(info))

@@ -81,6 +81,7 @@ def load_checkpoint_policy(run_dir: str, seed: int = 0, step: int | None = None)
     """``(env, params, policy, config)`` for seed ``seed``'s greedy agent in run folder ``run_dir`` (newest
     checkpoint, or ``step``; :func:`train.restore.restore_run`)."""
     from train.config import read_run_config
+    from train.env_params import with_values
     from train.restore import restore_run
 
     n = int(read_run_config(run_dir)["num_seeds"])  # a bad seed fails before anything is loaded
@@ -91,7 +92,7 @@ def load_checkpoint_policy(run_dir: str, seed: int = 0, step: int | None = None)
     agent = trainer.agent
     policy = lambda key, obs: agent.greedy_act(agent_state, obs)
     env = trainer.env
-    return env, env.default_params, policy, config
+    return env, with_values(config["scenario"], env.default_params, config["env"]), policy, config
 
 
 def render_checkpoint(run_dir: str, out: str | None = None, seed: int = 0, stride: int = 3, mp4: bool = True,

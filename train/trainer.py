@@ -32,7 +32,7 @@ import jax.numpy as jnp
 from envs_jax.time_limit import episode_step_limit
 from jaxsmarl import metrics
 
-__all__ = ["Trainer", "make_env", "make_evaluate", "make_train_fn", "seed_keys",
+__all__ = ["Trainer", "make_env", "config_env", "make_evaluate", "make_train_fn", "seed_keys",
            "episode_step_limit", "with_matmul_precision", "chunk_layout", "assemble_trainer"]
 
 
@@ -54,25 +54,38 @@ class Trainer(NamedTuple):
     seeds_in_sequence: bool = False
 
 
-def make_env(scenario: str, agents: int | None = None):
+def make_env(scenario: str, agents: int | None = None, env_params: dict | None = None):
     """``(env, auto-reset env, params)`` from :mod:`envs_jax`. ``highway`` is highway-v0 with ``agents``
     controlled vehicles (default 2), ``merge-cavs`` MARL_CAVs' merge with at most ``agents`` CAVs (3: easy traffic,
-    the default; 4: medium), their observations flattened per agent (:mod:`envs_jax.traffic_autoreset`)."""
+    the default; 4: medium), ``racetrack-v0`` highway-env's racetrack with ``agents`` controlled vehicles (default
+    3), their observations flattened per agent (:mod:`envs_jax.traffic_autoreset`).
+    ``env_params``: values replacing fields of the default params (a configuration's ``env``,
+    :mod:`train.env_params`)."""
     import envs_jax
+    from train.env_params import with_values
 
-    if scenario in ("highway", "merge-cavs"):
+    if scenario in ("highway", "merge-cavs", "racetrack-v0"):
         from envs_jax.traffic_autoreset import TrafficAutoResetWrapper
 
         if scenario == "highway":
             env = envs_jax.make("highway-v0", controlled_vehicles=2 if agents is None else int(agents))
+        elif scenario == "racetrack-v0":
+            env = envs_jax.make("racetrack-v0", controlled_vehicles=3 if agents is None else int(agents))
         else:
             density = {3: 1, 4: 2}.get(3 if agents is None else int(agents))
             if density is None:
                 raise ValueError(f"merge-cavs takes 3 agents (easy traffic) or 4 (medium), got {agents}")
             env = envs_jax.make("merge-cavs-v0", traffic_density=density)
-        return env, TrafficAutoResetWrapper(env), env.default_params
-    env = envs_jax.make(scenario)
-    return env, envs_jax.AutoResetWrapper(env), env.default_params
+        wrapped = TrafficAutoResetWrapper(env)
+    else:
+        env = envs_jax.make(scenario)
+        wrapped = envs_jax.AutoResetWrapper(env)
+    return env, wrapped, with_values(scenario, env.default_params, env_params or {})
+
+
+def config_env(config: dict):
+    """:func:`make_env` for run configuration ``config`` (its scenario, agents and environment parameters)."""
+    return make_env(config["scenario"], config.get("agents"), config.get("env"))
 
 
 def seed_keys(config: dict) -> jax.Array:

@@ -15,9 +15,9 @@ import numpy as np
 from envs_jax import kinematic_obs
 from envs_jax.idm import IDMParams
 
-__all__ = ["IDM_CLASS", "IDM_RANGES", "RENDER_KEYS", "check_idm", "config_given", "cost_value", "flag_value",
-           "idm_params", "int_value", "meta_action_config", "number_value", "observation_config", "speed_range",
-           "unwrap_section"]
+__all__ = ["IDM_CLASS", "IDM_RANGES", "RENDER_KEYS", "check_idm", "config_given", "continuous_action_config",
+           "cost_value", "flag_value", "idm_params", "int_value", "meta_action_config", "number_value",
+           "observation_config", "speed_range", "unwrap_section"]
 
 # highway-env's IDM drivers, the only other_vehicles_type the tasks simulate
 IDM_CLASS = "highway_env.vehicle.behavior.IDMVehicle"
@@ -104,6 +104,47 @@ def meta_action_config(name, value):
         raise ValueError(f"{name}: DiscreteMetaAction keys {sorted(action)} are not understood; allowed: "
                          f"['type', 'longitudinal', 'lateral', 'target_speeds']")
     return out
+
+
+def continuous_action_config(name, value, dynamical: bool, default_target_speeds) -> tuple:
+    """A ``ContinuousAction`` section (or ``MultiAgentAction`` of it): ``(longitudinal, lateral, values)`` with
+    ``values`` the ``acceleration_range``, ``steering_range`` (highway-env's defaults +-5 m/s^2, +-pi/4 when
+    absent) and ``target_speeds`` (read but unused by ``ContinuousAction``). ``dynamical`` is the one vehicle
+    model the task simulates (True: ``BicycleVehicle``, False: the kinematic ``Vehicle``)."""
+    action = unwrap_section(name, "action", value, "MultiAgentAction", "action_config")
+    kind = action.pop("type", None)
+    if kind != "ContinuousAction":
+        raise ValueError(f"{name}: action type must be 'ContinuousAction' (or MultiAgentAction of it), got {kind!r}")
+    lon, lat = action.pop("longitudinal", True), action.pop("lateral", True)
+    if not isinstance(lon, (bool, np.bool_)) or not isinstance(lat, (bool, np.bool_)) or not (lon or lat):
+        raise ValueError(f"{name}: ContinuousAction needs longitudinal and/or lateral True, got "
+                         f"longitudinal={lon!r}, lateral={lat!r}")
+    out = {}
+    for key, default in (("acceleration_range", (-5.0, 5.0)), ("steering_range", (-np.pi / 4, np.pi / 4))):
+        rng = action.pop(key, None)
+        rng = default if rng is None else rng
+        if (np.shape(rng) != (2,) or not np.all(np.isfinite(np.asarray(rng, float)))
+                or not float(rng[0]) < float(rng[1])):
+            raise ValueError(f"{name}: {key} must be [low, high] with finite low < high, got {rng!r}")
+        out[key] = (float(rng[0]), float(rng[1]))
+    target_speeds = np.asarray(action.pop("target_speeds", default_target_speeds), np.float64)
+    if target_speeds.ndim != 1 or target_speeds.size < 2 or not np.all(np.diff(target_speeds) > 0):
+        raise ValueError(f"{name}: target_speeds must be an increasing list of at least 2 speeds, "
+                         f"got {target_speeds.tolist()}")
+    out["target_speeds"] = target_speeds
+    given = action.pop("dynamical", False)
+    if not isinstance(given, (bool, np.bool_)) or bool(given) != dynamical:
+        model = "the BicycleVehicle (dynamical=True)" if dynamical else "the kinematic Vehicle (dynamical=False)"
+        raise ValueError(f"{name}: ContinuousAction(dynamical={given!r}) is not supported; {model} is")
+    if action.pop("clip", True) is not True:
+        raise ValueError(f"{name}: ContinuousAction(clip=False) is not supported; actions are clipped to [-1, 1]")
+    if action.pop("speed_range", None) is not None:
+        raise ValueError(f"{name}: ContinuousAction speed_range is not supported; speeds stay in [-40, 40] m/s")
+    if action:
+        raise ValueError(f"{name}: ContinuousAction keys {sorted(action)} are not understood; allowed: "
+                         f"['type', 'longitudinal', 'lateral', 'acceleration_range', 'steering_range', "
+                         f"'target_speeds', 'dynamical', 'clip', 'speed_range']")
+    return bool(lon), bool(lat), out
 
 
 def observation_config(name, value):

@@ -385,22 +385,33 @@ class IntersectionTrafficEnv(TrafficEnv):
         steps = st.road_steps + 1
         due = steps % self.task.period == 0
         ts, yl, yt = regulation.enforce_road_rules(self.road, st, st.yielding, st.yield_timer, self.task.priority,
-                                                   self.is_idm, st.order)
+                                                   self.is_idm, st.order, self._predictions(st))
         st = st.replace(target_speed=jnp.where(due, ts, st.target_speed), yielding=jnp.where(due, yl, st.yielding),
                         yield_timer=jnp.where(due, yt, st.yield_timer), road_steps=steps)
         return self._road_step(st, obstacles, dt)
+
+    def _predictions(self, st):
+        """The regulation's predicted trajectories (None: every slot along its route, as ``ControlledVehicle``)."""
+        return None
+
+    def _act(self, st, action, params):
+        """The agents' actions on the first frame of a step: ``MDPVehicle.act`` of the meta-actions."""
+        return self._decide(st, jnp.asarray(META_INDEX)[action], params)
+
+    def _record(self, st):
+        """The per-frame fields :meth:`step_substeps` returns."""
+        return dict(x=st.x, y=st.y, heading=st.heading, speed=st.speed, crashed=st.crashed, lane=st.lane,
+                    alive=st.alive, yielding=st.yielding, target_speed=st.target_speed)
 
     def _step(self, key, state, action, params, record):
         prev = state
         dt = 1.0 / self.simulation_frequency
         obstacles = self._obstacles(params, state.x.dtype)
-        state = self._decide(state, jnp.asarray(META_INDEX)[action], params)
+        state = self._act(state, action, params)
 
         def frame(st, _):
             st = self._frame(st, params, obstacles, dt)
-            rec = (dict(x=st.x, y=st.y, heading=st.heading, speed=st.speed, crashed=st.crashed, lane=st.lane,
-                        alive=st.alive, yielding=st.yielding, target_speed=st.target_speed) if record else None)
-            return st, rec
+            return st, (self._record(st) if record else None)
 
         state, trajectory = jax.lax.scan(frame, state, None, length=self.frames)
         state = state.replace(time=state.time + 1)
@@ -490,21 +501,9 @@ def default_num_slots(controlled: int, initial_vehicle_count: int, duration: flo
     return controlled + initial_vehicle_count + int(step_limit(duration, policy_frequency))
 
 
-def make_intersection(name: str, env_config: dict | None = None, **overrides) -> IntersectionTrafficEnv:
-    """``intersection-v0`` / ``intersection-multi-agent-v0`` from highway-env's config keys.
-
-    Keywords are highway-env config keys (``controlled_vehicles``, ``duration``, ``destination``,
-    ``initial_vehicle_count``, ``spawn_probability``, the reward keys, ``observation``, ``action``, ...)
-    plus ``num_slots`` (the vehicle pool; default :func:`default_num_slots`), ``collision_cost`` and
-    ``idm`` (an :class:`~envs_jax.idm.IDMParams` or a dict of its fields; default the env's drivers).
-    Unknown keys or bad values raise ``ValueError`` naming them and what is allowed.
-    """
-    cfg = dict(DEFAULTS[name])
-    cfg["observation"] = dict(OBSERVATION)
-    cfg["action"] = {"type": "DiscreteMetaAction", "longitudinal": True, "lateral": False,
-                     "target_speeds": list(TARGET_SPEEDS)}
-    cfg.update(config_given(name, cfg, OWN_KEYS, env_config, overrides, "allowed: False"))
-
+def intersection_settings(name: str, cfg: dict) -> tuple[dict, dict]:
+    """The checked values of an intersection config ``cfg`` (defaults merged with what was given), except
+    the action: ``(task keywords, params keywords)`` for :class:`IntersectionTraffic` and its params."""
     sim = int_value(name, "simulation_frequency", cfg["simulation_frequency"], 2)
     pol = int_value(name, "policy_frequency", cfg["policy_frequency"], 1, sim)
     k = int_value(name, "controlled_vehicles", cfg["controlled_vehicles"], 1)
@@ -523,21 +522,41 @@ def make_intersection(name: str, env_config: dict | None = None, **overrides) ->
     if not 0 <= p <= 1:
         raise ValueError(f"{name}: spawn_probability must be in [0, 1], got {p!r}")
     obs_cfg = observation_config(name, cfg["observation"])
-    ts = _action(name, cfg["action"])
     rsr = speed_range(name, cfg["reward_speed_range"])
     for key in ("normalize_reward", "offroad_terminal"):
         flag_value(name, key, cfg[key])
     idm = idm_params(name, cfg.get("idm"), intersection_idm())
-    task = IntersectionTraffic(name, k, n_init, num_slots, sim, pol, obs_cfg)
-    params = IntersectionTrafficParams(
+    task = dict(controlled_vehicles=k, initial_vehicle_count=n_init, num_slots=num_slots, simulation_frequency=sim,
+                policy_frequency=pol, obs_config=obs_cfg)
+    params = dict(
         duration=duration, collision_cost=cost_value(name, "collision_cost", cfg.get("collision_cost", 5.0)),
-        target_speeds=ts, idm=idm, obstacles=None, spawn_probability=p, destination=destination,
+        idm=idm, obstacles=None, spawn_probability=p, destination=destination,
         collision_reward=number_value(name, "collision_reward", cfg["collision_reward"]),
         high_speed_reward=number_value(name, "high_speed_reward", cfg["high_speed_reward"]),
         arrived_reward=number_value(name, "arrived_reward", cfg["arrived_reward"]),
         on_road_reward=number_value(name, "on_road_reward", cfg.get("on_road_reward", 0.0)),
         reward_speed_range=(float(rsr[0]), float(rsr[1])),
         normalize_reward=bool(cfg["normalize_reward"]), offroad_terminal=bool(cfg["offroad_terminal"]))
-    if params.normalize_reward and params.arrived_reward == params.collision_reward:
+    if params["normalize_reward"] and params["arrived_reward"] == params["collision_reward"]:
         raise ValueError(f"{name}: normalize_reward needs arrived_reward != collision_reward")
-    return IntersectionTrafficEnv(task, params)
+    return task, params
+
+
+def make_intersection(name: str, env_config: dict | None = None, **overrides) -> IntersectionTrafficEnv:
+    """``intersection-v0`` / ``intersection-multi-agent-v0`` from highway-env's config keys.
+
+    Keywords are highway-env config keys (``controlled_vehicles``, ``duration``, ``destination``,
+    ``initial_vehicle_count``, ``spawn_probability``, the reward keys, ``observation``, ``action``, ...)
+    plus ``num_slots`` (the vehicle pool; default :func:`default_num_slots`), ``collision_cost`` and
+    ``idm`` (an :class:`~envs_jax.idm.IDMParams` or a dict of its fields; default the env's drivers).
+    Unknown keys or bad values raise ``ValueError`` naming them and what is allowed.
+    """
+    cfg = dict(DEFAULTS[name])
+    cfg["observation"] = dict(OBSERVATION)
+    cfg["action"] = {"type": "DiscreteMetaAction", "longitudinal": True, "lateral": False,
+                     "target_speeds": list(TARGET_SPEEDS)}
+    cfg.update(config_given(name, cfg, OWN_KEYS, env_config, overrides, "allowed: False"))
+    task, params = intersection_settings(name, cfg)
+    ts = _action(name, cfg["action"])
+    return IntersectionTrafficEnv(IntersectionTraffic(name, **task), IntersectionTrafficParams(target_speeds=ts,
+                                                                                               **params))

@@ -43,6 +43,7 @@ from envs_jax import lanes as L
 from envs_jax.continuous_traffic_env import ContinuousTrafficEnv
 from envs_jax.scenarios.config_values import (
     config_given,
+    continuous_action_config,
     cost_value,
     flag_value,
     idm_params,
@@ -200,39 +201,7 @@ class RacetrackTraffic(Task):
 # Configuration: highway-env's config dict and keyword overrides -> an environment
 
 def _action(value) -> tuple:
-    action = unwrap_section(NAME, "action", value, "MultiAgentAction", "action_config")
-    kind = action.pop("type", None)
-    if kind != "ContinuousAction":
-        raise ValueError(f"{NAME}: action type must be 'ContinuousAction' (or MultiAgentAction of it), got {kind!r}")
-    lon, lat = action.pop("longitudinal", True), action.pop("lateral", True)
-    if not isinstance(lon, (bool, np.bool_)) or not isinstance(lat, (bool, np.bool_)) or not (lon or lat):
-        raise ValueError(f"{NAME}: ContinuousAction needs longitudinal and/or lateral True, got "
-                         f"longitudinal={lon!r}, lateral={lat!r}")
-    out = {}
-    for key, default in (("acceleration_range", (-5.0, 5.0)), ("steering_range", (-np.pi / 4, np.pi / 4))):
-        rng = action.pop(key, None)
-        rng = default if rng is None else rng
-        if (np.shape(rng) != (2,) or not np.all(np.isfinite(np.asarray(rng, float)))
-                or not float(rng[0]) < float(rng[1])):
-            raise ValueError(f"{NAME}: {key} must be [low, high] with finite low < high, got {rng!r}")
-        out[key] = (float(rng[0]), float(rng[1]))
-    target_speeds = np.asarray(action.pop("target_speeds", [0, 5, 10]), np.float64)  # unused by ContinuousAction
-    if target_speeds.ndim != 1 or target_speeds.size < 2 or not np.all(np.diff(target_speeds) > 0):
-        raise ValueError(f"{NAME}: target_speeds must be an increasing list of at least 2 speeds, "
-                         f"got {target_speeds.tolist()}")
-    out["target_speeds"] = target_speeds
-    if action.pop("dynamical", False) is not False:
-        raise ValueError(f"{NAME}: ContinuousAction(dynamical=True) (BicycleVehicle) is not supported; "
-                         f"the kinematic Vehicle is")
-    if action.pop("clip", True) is not True:
-        raise ValueError(f"{NAME}: ContinuousAction(clip=False) is not supported; actions are clipped to [-1, 1]")
-    if action.pop("speed_range", None) is not None:
-        raise ValueError(f"{NAME}: ContinuousAction speed_range is not supported; speeds stay in [-40, 40] m/s")
-    if action:
-        raise ValueError(f"{NAME}: ContinuousAction keys {sorted(action)} are not understood; allowed: "
-                         f"['type', 'longitudinal', 'lateral', 'acceleration_range', 'steering_range', "
-                         f"'target_speeds', 'dynamical', 'clip', 'speed_range']")
-    return bool(lon), bool(lat), out
+    return continuous_action_config(NAME, value, False, [0, 5, 10])
 
 
 def _observation(value):

@@ -5,7 +5,7 @@ For each of ``num_minibatches`` minibatches (one pass, no epochs), agent i:
 1. reward and cost critics: one clipped-Huber regression step each;
 2. ``c = (J_c - d)(1 - gamma)`` (``0 -> 1e-8``);
 3. ``g = grad[-mean(ratio factor A_r)]``, ``b = grad mean(ratio factor A_c)`` w.r.t. the flat actor parameters
-   (the network and ``log_std``);
+   (the network, and ``log_std`` of a Gaussian policy);
 4. ``H^-1 g``, ``H^-1 b`` by conjugate gradient with products by the Hessian of the mean KL at the current
    parameters (damping 0.1), computed as ``J^T H_out J`` (:func:`jaxsmarl.cpo.gauss_newton_operator`: the same
    matrix, cheaper than differentiating the KL's gradient forward-mode; on XLA:CPU the
@@ -23,7 +23,6 @@ from jax.flatten_util import ravel_pytree
 
 from jaxsmarl import cpo
 from jaxsmarl.algos.ppo_base import PPOBase, PPOState
-from jaxsmarl.gaussian import gaussian_kl, gaussian_log_prob, std_from_param
 from jaxsmarl.losses import masked_mean
 
 __all__ = ["MACPO"]
@@ -35,7 +34,8 @@ class MACPO(PPOBase):
         cfg = self.config
         theta, unravel = ravel_pytree(actor)
 
-        policy_at = lambda th: self.policy(unravel(th), o)  # (mean [B, k], std [k])
+        head = self.head
+        policy_at = lambda th: self.policy(unravel(th), o)  # (mean [B, k], std [k]) or logits [B, A]
 
         def policy_rev(th):
             """``policy_at`` for reverse mode replayed at one point (``Network.apply_replay``; in the column
@@ -43,23 +43,20 @@ class MACPO(PPOBase):
             :func:`jaxsmarl.mlp.mlp_rows`): the gradients below and the ``J^T`` of the Fisher products
             (:func:`cpo.gauss_newton_operator`)."""
             act = unravel(th)
-            return (self.actor_net.apply_replay(act["net"], o),
-                    std_from_param(act["log_std"], cfg.std_x_coef, cfg.std_y_coef))
+            return head.dist(act, self.actor_net.apply_replay(act["net"], o))
 
         def surrogates_of(out):
-            mean, std = out
-            ratio = jnp.exp(gaussian_log_prob(a, mean, std) - lo)
+            ratio = jnp.exp(head.log_prob(out, a) - lo)
             return -masked_mean(ratio * f * ar, m), masked_mean(ratio * f * ac, m)
 
         # both gradients from one forward pass
         (reward_loss, cost_loss), pullback = jax.vjp(lambda th: surrogates_of(policy_rev(th)), theta)
         one, zero = jnp.ones_like(reward_loss), jnp.zeros_like(reward_loss)
         (g,), (b,) = pullback((one, zero)), pullback((zero, one))
-        mean_old, std_old = jax.lax.stop_gradient(policy_at(theta))
+        old = jax.lax.stop_gradient(policy_at(theta))
 
         def kl_of(out):
-            mean, std = out
-            return masked_mean(gaussian_kl(mean_old, std_old, mean, jnp.broadcast_to(std, mean.shape)), m)
+            return masked_mean(head.kl(old, out), m)
 
         # the KL's Hessian at theta, J^T H_out J (the Fisher matrix; see cpo.gauss_newton_operator)
         fvp = cpo.gauss_newton_operator(policy_at, kl_of, theta, cfg.fvp_damping, reverse_fn=policy_rev)

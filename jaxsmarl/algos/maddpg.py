@@ -5,7 +5,7 @@ Two agents, deterministic actors bounded by ``max_action * tanh``:
 * leader ``a1 = mu1(o1)``, follower ``a2 = mu2(o2, a1)`` (decided in order, executed together); with
   ``stackelberg=False`` (plain MADDPG) ``a2 = mu2(o2)``.
 * per agent a centralized reward critic ``Q_i(s, a1, a2)`` and (``constrained=True``) cost critic
-  ``G_i(s, a1, a2)``, stacked as ``[2 agents, K kinds]`` (acting and evaluation: batched einsums over the
+  ``G_i(s, a1, a2)``, stacked as ``[agents, kinds]`` (acting and evaluation: batched einsums over the
   stack; the update: the networks' ``apply_update``, in the column layout each network alone,
   :mod:`jaxsmarl.network`).
   ``critic_input="joint"``: ``s = [o1, o2]`` (paper: the global state); ``"own"``: ``s = o_i`` (the authors'
@@ -19,6 +19,16 @@ Two agents, deterministic actors bounded by ``max_action * tanh``:
   ``a2 = mu2(o2, a1)``, differentiated w.r.t. theta1 THROUGH the follower's actor (the Stackelberg total
   derivative of p23; only theta1 is stepped). Follower loss the same with Q2/G2, differentiated w.r.t. theta2
   through a2 only (p25). ``pen_i`` is the Lagrangian term of :class:`jaxsmarl.lagrangian.Lagrangian`.
+* K agents and any hierarchy (``n_agents``, ``hierarchy``, :mod:`jaxsmarl.hierarchy`; the paper's multi-agent
+  expansion, docs/algorithms.md): each actor reads its own observation and the actions of every agent on the
+  levels above it, ``a_i = mu_i(o_i, a_above(i))``; the levels decide in order, the agents of one level
+  simultaneously. The critics read the joint observation (or ``o_i``) and all K actions. Agent i's actor loss
+  is the two-agent one with ``Q_i/G_i`` at the hierarchical decision, differentiated w.r.t. theta_i through a_i
+  and through the actors of every level below it (each lower action a function of a_i and of the lower actions
+  between them: the chain rule of p23 over the whole hierarchy), the levels above and its own level held
+  fixed (:meth:`MADDPGAgent.actor_values`). The two-agent chain ``0|1`` is the leader/follower case above;
+  ``stackelberg=False`` (MADDPG, C-MADDPG) puts every agent on one level: each actor on its own observation,
+  its gradient through its own action only.
 * Multipliers (p22b/p22d): one per agent, from the batch cost estimates at the current actors' actions.
 * Exploration (authors, §5.1): with probability ``eps_i`` a uniform action, else ``clip(mu_i + noise_i N(0, 1))``;
   the follower responds to the EXECUTED leader action. ``eps`` and ``noise`` decay linearly per env step.
@@ -29,7 +39,8 @@ Two agents, deterministic actors bounded by ``max_action * tanh``:
 Differences to the authors' code, as options: ``lambda_rule="authors"`` (non-decreasing lambda and hinge
 penalty), ``critic_input="own"``, ``bootstrap_on_truncation=False``, ``actor_order="sequential"`` (their
 ``leader.train()`` runs before ``follower.train()``, so the follower's actor loss and multiplier see the leader
-actor after its step; by default both actors step from the same parameters, as Algorithm 2 reads),
+actor after its step; with K agents level after level; by default all actors step from the same parameters, as
+Algorithm 2 reads),
 ``terminal_mask="batch_mean"`` (their targets bootstrap every transition with the discount scaled by the
 batch's done fraction, :mod:`jaxsmarl.bootstrap`).
 """
@@ -47,6 +58,7 @@ from jaxsmarl import bootstrap, networks
 from jaxsmarl.actor import Actor, actor_columns, make_actor
 from jaxsmarl.algos.maddpg_config import MADDPGConfig
 from jaxsmarl.exploration import linear_decay
+from jaxsmarl.hierarchy import agent_order
 from jaxsmarl.lagrangian import Lagrangian
 from jaxsmarl.networks import critic_values, critic_values_columns, layer_name
 from jaxsmarl.transition import Transition
@@ -55,7 +67,6 @@ __all__ = ["MADDPGConfig", "MADDPGState", "MADDPGAgent", "Actor", "Transition", 
            "critic_values_columns", "actor_columns"]
 
 Q, G = 0, 1  # kind axis of the stacked critics
-LEADER, FOLLOWER = 0, 1
 
 
 @flax.struct.dataclass
@@ -77,13 +88,15 @@ class MADDPGAgent:
 
     def __init__(self, config: MADDPGConfig):
         c = self.config = config
-        # the leader's and the follower's actor: one module, two input sizes
-        self.actor_nets = (make_actor(c.obs_dim, c.hidden_sizes, c.action_dim, c.max_action, c.init),
-                           make_actor(c.follower_in_dim, c.hidden_sizes, c.action_dim, c.max_action, c.init))
-        self.actor = self.actor_nets[LEADER]  # its apply serves either actor
+        self.n = c.n_agents
+        self.levels = c.levels
+        # one actor per agent: one module, input sizes by the agent's level
+        self.actor_nets = tuple(make_actor(c.actor_in_dim(i), c.hidden_sizes, c.action_dim, c.max_action, c.init)
+                                for i in range(self.n))
+        self.actor = self.actor_nets[0]  # its apply serves every actor
         self.critic = networks.JointActionMLP(hidden=tuple(c.hidden_sizes), init_scheme=c.init)  # one network
-        self.critic_stack = networks.make_critic_stack(c.critic_obs_dim, (c.action_dim, c.action_dim),
-                                                       c.hidden_sizes, c.init, shape=(2, c.n_kinds))
+        self.critic_stack = networks.make_critic_stack(c.critic_obs_dim, (c.action_dim,) * self.n,
+                                                       c.hidden_sizes, c.init, shape=(self.n, c.n_kinds))
         self.actor_opt = optax.adam(c.lr_actor)
         self.critic_opt = optax.adam(c.lr_critic)
         self.lagrangian = Lagrangian(tuple(c.cost_threshold), c.lr_lambda, c.lambda_max, c.lambda_init,
@@ -92,42 +105,53 @@ class MADDPGAgent:
     # ---------------------------------------------------------------------------------------------
     def init(self, key: jax.Array) -> MADDPGState:
         """Online networks, identical target copies (Alg. 2 initialisation), Adam states, lambda_init."""
-        k_crit, k_lead, k_fol = jax.random.split(key, 3)
+        k_crit, *k_actors = jax.random.split(key, 1 + self.n)  # critics, then each agent's actor
         critics = self.critic_stack.init(k_crit)
-        actors = (self.actor_nets[LEADER].init(k_lead), self.actor_nets[FOLLOWER].init(k_fol))
+        actors = tuple(net.init(k) for net, k in zip(self.actor_nets, k_actors))
         return MADDPGState(actors=actors, critics=critics, target_actors=actors, target_critics=critics,
                            actor_opt=self.actor_opt.init(actors), critic_opt=self.critic_opt.init(critics),
                            lam=self.lagrangian.init(), n_updates=jnp.int32(0))
 
     def transition_example(self) -> Transition:
         c = self.config
-        return Transition(obs=jnp.zeros((2, c.obs_dim)), action=jnp.zeros((2, c.action_dim)),
-                          reward=jnp.zeros((2,)), cost=jnp.zeros((2,)), next_obs=jnp.zeros((2, c.obs_dim)),
-                          terminated=jnp.zeros((2,), bool), truncated=jnp.zeros((), bool))
+        k = c.n_agents
+        return Transition(obs=jnp.zeros((k, c.obs_dim)), action=jnp.zeros((k, c.action_dim)),
+                          reward=jnp.zeros((k,)), cost=jnp.zeros((k,)), next_obs=jnp.zeros((k, c.obs_dim)),
+                          terminated=jnp.zeros((k,), bool), truncated=jnp.zeros((), bool))
 
     # ---------------------------------------------------------------------------------------------
     def _actor(self, who: int, actor_params, x: jax.Array, for_update: bool = False) -> jax.Array:
         net = self.actor_nets[who]
         return (net.apply_update if for_update else net.apply)(actor_params, x)
 
-    def leader_action(self, actor_params, obs_leader: jax.Array, for_update: bool = False) -> jax.Array:
-        """``mu1(o1)``: ``[..., obs_dim]`` -> ``[..., action_dim]``. ``for_update=True`` (a ``[B, obs_dim]``
-        batch): the same actor in the form the gradient steps differentiate (``Network.apply_update``)."""
-        return self._actor(LEADER, actor_params, obs_leader, for_update)
+    def actor_input(self, who: int, obs_who: jax.Array, actions: dict) -> jax.Array:
+        """Agent ``who``'s actor input: its observation ``[..., obs_dim]`` and the actions ``actions[j]`` of the
+        agents on the levels above it, in decision order (none for the first level)."""
+        above = self.config.above(who)
+        return jnp.concatenate([obs_who] + [actions[j] for j in above], axis=-1) if above else obs_who
 
-    def follower_action(self, actor_params, obs_follower: jax.Array, a1: jax.Array, for_update: bool = False):
-        """``mu2(o2, a1)`` (Stackelberg) or ``mu2(o2)`` (plain MADDPG)."""
-        x = jnp.concatenate([obs_follower, a1], axis=-1) if self.config.stackelberg else obs_follower
-        return self._actor(FOLLOWER, actor_params, x, for_update)
+    def action(self, who: int, actor_params, obs_who: jax.Array, actions: dict, for_update: bool = False):
+        """``mu_who(o_who, a_above)``: ``[..., action_dim]``. ``for_update=True`` (a ``[B, ...]`` batch): the same
+        actor in the form the gradient steps differentiate (``Network.apply_update``)."""
+        return self._actor(who, actor_params, self.actor_input(who, obs_who, actions), for_update)
+
+    def _decide(self, actors, obs: jax.Array, respond=None) -> dict:
+        """Every agent's action, level by level: ``{agent: [..., action_dim]}``; ``respond(who, mu)`` (exploration)
+        turns an actor's output into the executed action that the levels below read."""
+        acts: dict = {}
+        for level in self.levels:
+            for i in level:
+                mu = self.action(i, actors[i], obs[..., i, :], acts)
+                acts[i] = mu if respond is None else respond(i, mu)
+        return acts
 
     def joint_action(self, actors, obs: jax.Array) -> jax.Array:
-        """Greedy hierarchical decision ``[..., 2, D]`` -> ``[..., 2, action_dim]``."""
-        a1 = self.leader_action(actors[LEADER], obs[..., LEADER, :])
-        a2 = self.follower_action(actors[FOLLOWER], obs[..., FOLLOWER, :], a1)
-        return jnp.stack([a1, a2], axis=-2)
+        """Greedy hierarchical decision ``[..., K, D]`` -> ``[..., K, action_dim]``."""
+        acts = self._decide(actors, obs)
+        return jnp.stack([acts[i] for i in range(self.n)], axis=-2)
 
     def greedy_preactivations(self, actors, obs: jax.Array) -> jax.Array:
-        """The greedy decision's actor outputs before ``max_action * tanh``, ``[..., 2, action_dim]``. Where
+        """The greedy decision's actor outputs before ``max_action * tanh``, ``[..., K, action_dim]``. Where
         ``|x| >> 1`` the actor is saturated: ``tanh'(x) ~ 0`` passes almost no gradient back to it, a known way
         for DDPG to get stuck (``benchmarks/actor_saturation.py``)."""
         last = layer_name(len(self.config.hidden_sizes))
@@ -136,24 +160,24 @@ class MADDPGAgent:
             _, st = self.actor.apply(params, x, capture_intermediates=lambda mdl, _: mdl.name == last)
             return st["intermediates"][last]["__call__"][0]
 
-        a1 = self.leader_action(actors[LEADER], obs[..., LEADER, :])
-        x2 = (jnp.concatenate([obs[..., FOLLOWER, :], a1], axis=-1) if self.config.stackelberg
-              else obs[..., FOLLOWER, :])
-        return jnp.stack([pre(actors[LEADER], obs[..., LEADER, :]), pre(actors[FOLLOWER], x2)], axis=-2)
+        acts = self._decide(actors, obs)
+        return jnp.stack([pre(actors[i], self.actor_input(i, obs[..., i, :], acts)) for i in range(self.n)], axis=-2)
 
-    def critic_input(self, obs: jax.Array, a1: jax.Array, a2: jax.Array) -> jax.Array:
-        """Per-agent critic inputs ``[B, 2, D_in]``: ``[s, a1, a2]`` with ``s = [o1, o2]`` or ``o_i``."""
+    def critic_input(self, obs: jax.Array, *actions: jax.Array) -> jax.Array:
+        """Per-agent critic inputs ``[B, K, D_in]``: ``[s, a_1, ..., a_K]`` with ``s`` the joint observation or
+        ``o_i``; ``actions``: one ``[B, action_dim]`` per agent, in agent order."""
         b = obs.shape[0]
-        acts = jnp.concatenate([a1, a2], axis=-1)
+        k = len(actions)
+        acts = jnp.concatenate(actions, axis=-1)
         if self.config.critic_input == "joint":
             x = jnp.concatenate([obs.reshape((b, -1)), acts], axis=-1)
-            return jnp.broadcast_to(x[:, None], (b, 2, x.shape[-1]))
-        return jnp.concatenate([obs, jnp.broadcast_to(acts[:, None], (b, 2, acts.shape[-1]))], axis=-1)
+            return jnp.broadcast_to(x[:, None], (b, k, x.shape[-1]))
+        return jnp.concatenate([obs, jnp.broadcast_to(acts[:, None], (b, k, acts.shape[-1]))], axis=-1)
 
     def values(self, critics, obs: jax.Array, actions: jax.Array, for_update: bool = False) -> jax.Array:
-        """Critics at given joint actions: obs ``[B, 2, D]``, actions ``[B, 2, k]`` -> ``[B, 2, K]``
+        """Critics at given joint actions: obs ``[B, K, D]``, actions ``[B, K, k]`` -> ``[B, K, kinds]``
         (``for_update=True``: the same values in the form the update uses, ``Network.apply_update``)."""
-        x = self.critic_input(obs, actions[:, LEADER], actions[:, FOLLOWER])
+        x = self.critic_input(obs, *[actions[:, i] for i in range(self.n)])
         return (self.critic_stack.apply_update if for_update else self.critic_stack.apply)(critics, x)
 
     # ---------------------------------------------------------------------------------------------
@@ -172,13 +196,12 @@ class MADDPGAgent:
         return jnp.where(coin, unif, noisy)
 
     def act(self, state: MADDPGState, obs: jax.Array, key: jax.Array, explore: dict) -> jax.Array:
-        """Exploring actions ``[..., 2, k]``; the follower responds to the executed (noisy) leader action."""
-        k1, k2 = jax.random.split(key)
+        """Exploring actions ``[..., K, k]``; each level responds to the executed (noisy) actions of the levels
+        above it."""
+        keys = tuple(jax.random.split(key, self.n))
         eps, noise = explore["eps"], explore["noise"]
-        a1 = self._explore(self.leader_action(state.actors[LEADER], obs[..., LEADER, :]), k1, eps[0], noise[0])
-        a2 = self.follower_action(state.actors[FOLLOWER], obs[..., FOLLOWER, :], a1)
-        a2 = self._explore(a2, k2, eps[1], noise[1])
-        return jnp.stack([a1, a2], axis=-2)
+        acts = self._decide(state.actors, obs, lambda i, mu: self._explore(mu, keys[i], eps[i], noise[i]))
+        return jnp.stack([acts[i] for i in range(self.n)], axis=-2)
 
     def greedy_act(self, state: MADDPGState, obs: jax.Array) -> jax.Array:
         return self.joint_action(state.actors, obs)
@@ -195,27 +218,39 @@ class MADDPGAgent:
         return rc + c.gamma * keep[..., None] * boot
 
     def actor_values(self, actors, critics, obs: jax.Array, through_follower: bool | None = None) -> jax.Array:
-        """Each agent's critics at the current actors' actions, wired for the actor gradients: ``[B, 2, K]``.
+        """Each agent's critics at the current actors' actions, wired for the actor gradients: ``[B, K, kinds]``.
 
-        Row 0 (leader) is ``Q1/G1(s, a1, mu2(o2, a1))`` with ``a1 = mu1(o1)``; gradients reach theta1 through a1
-        directly and, if ``through_follower`` (default: ``stackelberg``), through the follower's actor (p23);
-        theta2 is held fixed there. Row 1 (follower) is ``Q2/G2(s, a1, mu2(o2, a1))`` with a1 held fixed, so its
-        gradient reaches theta2 through a2 only (p25). Critic parameters are held fixed in both rows.
+        Row i is ``Q_i/G_i(s, a)`` at the hierarchical decision ``a``. Agent i's action ``a_i = mu_i(o_i, a_above)``
+        is live in theta_i; the agents before it in decision order keep their actions; the agents after it respond
+        through their actors (parameters held fixed), in decision order, so the gradient reaches theta_i through a_i
+        directly and through every lower actor that reads a_i or a response to it (the chain rule of p23 over the
+        whole hierarchy); its own level's agents do not read a_i, so their actions stay as they are.
+        ``through_follower=False`` holds the lower levels' responses fixed instead (the naive gradient). Two agents:
+        row 0 is the leader's ``Q1/G1(s, a1, mu2(o2, a1))`` (p23), row 1 the follower's with a1 fixed (p25). Critic
+        parameters are held fixed in every row.
         """
-        through = self.config.stackelberg if through_follower is None else through_follower
+        through = True if through_follower is None else through_follower
         critics = jax.lax.stop_gradient(critics)
-        a1 = self.leader_action(actors[LEADER], obs[:, LEADER], for_update=True)
-        a1_fixed = jax.lax.stop_gradient(a1)
-        a2_lead = self.follower_action(jax.lax.stop_gradient(actors[FOLLOWER]), obs[:, FOLLOWER],
-                                       a1 if through else a1_fixed, for_update=True)
-        a2_fol = self.follower_action(actors[FOLLOWER], obs[:, FOLLOWER], a1_fixed, for_update=True)
-        x_lead = self.critic_input(obs, a1, a2_lead)[:, LEADER]
-        x_fol = self.critic_input(obs, a1_fixed, a2_fol)[:, FOLLOWER]
-        x = jnp.stack([x_lead, x_fol], axis=1)
+        sg = jax.lax.stop_gradient
+        order = agent_order(self.levels)
+        own, fixed, rows = {}, {}, {}
+        for pos, i in enumerate(order):
+            # a_i live in theta_i, on the fixed actions of the agents before it (its actor reads those above it)
+            own[i] = self.action(i, actors[i], obs[:, i], fixed, for_update=True)
+            row = dict(fixed)
+            if pos + 1 < len(order):
+                fixed[i] = sg(own[i])
+                row[i] = own[i] if through else fixed[i]
+                for j in order[pos + 1:]:  # the later agents respond; a_i reaches those below its level
+                    row[j] = self.action(j, sg(actors[j]), obs[:, j], row, for_update=True)
+            row[i] = own[i]
+            rows[i] = row
+        x = jnp.stack([self.critic_input(obs, *[rows[i][j] for j in range(self.n)])[:, i] for i in range(self.n)],
+                      axis=1)
         return self.critic_stack.apply_update(critics, x)
 
     def actor_losses(self, actors, critics, lam: jax.Array, obs: jax.Array, through_follower: bool | None = None):
-        """``([2] per-agent losses mean_B(-Q_i + pen_i(G_i)), [B, 2, K] values)``; minimising loss i over
+        """``([K] per-agent losses mean_B(-Q_i + pen_i(G_i)), [B, 2, K] values)``; minimising loss i over
         theta_i is the ascent of p22a/p22c."""
         v = self.actor_values(actors, critics, obs, through_follower)
         per_sample = -v[..., Q]
@@ -226,7 +261,7 @@ class MADDPGAgent:
     def _loss(self, params, state: MADDPGState, batch: Transition, targets: jax.Array):
         critics, actors = params
         pred = self.values(critics, batch.obs, batch.action, for_update=True)
-        per_net = jnp.mean((pred - jax.lax.stop_gradient(targets)) ** 2, axis=0)  # [2, K]
+        per_net = jnp.mean((pred - jax.lax.stop_gradient(targets)) ** 2, axis=0)  # [K agents, kinds]
         actor_loss, v = self.actor_losses(actors, critics, state.lam, batch.obs)
         return jnp.sum(per_net) + jnp.sum(actor_loss), (per_net, jnp.mean(pred, axis=0), actor_loss, v)
 
@@ -243,17 +278,30 @@ class MADDPGAgent:
         upd, actor_opt = self.actor_opt.update(g_act, state.actor_opt, state.actors)
         actors = optax.apply_updates(state.actors, upd)
         if c.actor_order == "sequential":
-            # the authors' leader.train() before follower.train(): the follower's actor loss (and its multiplier)
-            # at a1 = mu1(o1) of the STEPPED leader actor. Adam is elementwise, so the leader's step stands.
-            def follower_loss(theta2):
-                loss, v_new = self.actor_losses((actors[LEADER], theta2), state.critics, state.lam, batch.obs)
-                return loss[FOLLOWER], (loss, v_new)
+            # the authors' leader.train() before follower.train(), level by level: the actor losses (and
+            # multipliers) of a level at the actions of the STEPPED actors of the levels above it, the levels below
+            # not yet stepped. Adam is elementwise, so the steps of the levels above stand.
+            grads_now = list(g_act)
+            for depth in range(1, len(self.levels)):
+                level, above = self.levels[depth], {a for lv in self.levels[:depth] for a in lv}
 
-            g2, (loss_new, v_new) = jax.grad(follower_loss, has_aux=True)(state.actors[FOLLOWER])
-            upd, actor_opt = self.actor_opt.update((g_act[LEADER], g2), state.actor_opt, state.actors)
-            actors = optax.apply_updates(state.actors, upd)
-            v = v.at[:, FOLLOWER].set(v_new[:, FOLLOWER])
-            actor_loss = actor_loss.at[FOLLOWER].set(loss_new[FOLLOWER])
+                def level_loss(thetas, level=level, above=above, stepped=actors):
+                    mixed = tuple(stepped[a] if a in above else thetas[level.index(a)] if a in level
+                                  else state.actors[a] for a in range(self.n))
+                    loss, v_new = self.actor_losses(mixed, state.critics, state.lam, batch.obs)
+                    total = loss[level[0]]
+                    for a in level[1:]:
+                        total = total + loss[a]
+                    return total, (loss, v_new)
+
+                g_level, (loss_new, v_new) = jax.grad(level_loss, has_aux=True)(tuple(state.actors[a] for a in level))
+                for a, g in zip(level, g_level):
+                    grads_now[a] = g
+                upd, actor_opt = self.actor_opt.update(tuple(grads_now), state.actor_opt, state.actors)
+                actors = optax.apply_updates(state.actors, upd)
+                for a in level:
+                    v = v.at[:, a].set(v_new[:, a])
+                    actor_loss = actor_loss.at[a].set(loss_new[a])
         lam = self.lagrangian.update(state.lam, v[..., G]) if c.constrained else state.lam
 
         n = state.n_updates  # the authors soft-update when train_step > 0 and train_step % update_rate == 0

@@ -2,7 +2,9 @@
 
 Defaults: the authors' intersection CS-MADDPG run (docs/algorithms.md). ``stackelberg`` and ``constrained`` pick the
 variant (CS-MADDPG, S-MADDPG, C-MADDPG, MADDPG); the options marked ``only="constrained"`` exist only with cost
-critics. The command line registers the options of this dataclass (:func:`jaxsmarl.options.option_table`).
+critics. ``n_agents`` and ``hierarchy`` (:mod:`jaxsmarl.hierarchy`) give K agents and who decides before whom; the
+per-agent options then hold K values. The command line registers the options of this dataclass
+(:func:`jaxsmarl.options.option_table`).
 """
 
 from __future__ import annotations
@@ -10,6 +12,7 @@ from __future__ import annotations
 import dataclasses
 import math
 
+from jaxsmarl.hierarchy import chain, flat, format_hierarchy, validate_hierarchy
 from jaxsmarl.options import TERMINAL_MASKS, Bool, Choice, Int, Num, PerAgent, Sizes, option
 
 __all__ = ["MADDPGConfig"]
@@ -26,7 +29,10 @@ class MADDPGConfig:
     action_dim: int = 1  # per agent, from the environment
     obs_dim: int = 8  # from the environment
     max_action: float = 1.0
-    stackelberg: bool = True  # follower conditioned on a1 and leader gradient through mu2
+    n_agents: int = 2  # from the environment
+    # True: the hierarchy (default the chain 0|1|...|K-1) conditions each actor on the actions of the levels above
+    # and sends each actor's gradient through the actors below; False: no hierarchy (every agent on one level)
+    stackelberg: bool = True
     constrained: bool = True  # cost critics + Lagrange multipliers
     updates_per_step: int = option(1, "gradient updates per loop iteration (authors: 1 per environment step)",
                                    Int(1))
@@ -69,6 +75,11 @@ class MADDPGConfig:
         "sample", "which transitions bootstrap: sample (each transition's own terminal flag) | batch_mean (the "
                   "authors' effective rule: every transition bootstraps, discount scaled by the batch's done "
                   "fraction), for the reward and the cost critics", Choice(TERMINAL_MASKS))
+    # levels of agent indices or "0|1|2" (jaxsmarl.hierarchy); None: the chain (stackelberg) or one level
+    hierarchy: str | tuple | None = option(
+        None, "who decides before whom (s-maddpg, cs-maddpg): levels of agent indices, '|' between levels, ',' within "
+              "one, e.g. '0|1|2' (chain), '0,1|2' (two leaders), '0,1,2' (no hierarchy); null: the chain "
+              "0|1|...|K-1 (maddpg, c-maddpg: no hierarchy) (docs/algorithms.md)")
     cost_threshold: tuple[float, ...] = option(
         (5.0, 5.0), "per-agent cost limits [d_leader, d_follower] on the cost critics (a single number sets both)",
         PerAgent(Num(hint="the cost critics estimate discounted episode costs")), only="constrained")
@@ -91,9 +102,39 @@ class MADDPGConfig:
         if self.terminal_mask not in TERMINAL_MASKS:
             raise ValueError(f"terminal_mask must be one of {', '.join(TERMINAL_MASKS)}, "
                              f"got {self.terminal_mask!r}")
+        if isinstance(self.n_agents, bool) or not isinstance(self.n_agents, int) or self.n_agents < 1:
+            raise ValueError(f"n_agents must be an integer >= 1, got {self.n_agents!r}")
         for name in ("cost_threshold", "noise_start", "noise_min", "eps_start", "eps_min"):
-            if len(getattr(self, name)) != 2:
-                raise ValueError(f"{name} needs one value per agent [leader, follower], got {getattr(self, name)}")
+            if len(getattr(self, name)) != self.n_agents:
+                raise ValueError(f"{name} needs one value per agent ({self.n_agents}), got {getattr(self, name)}")
+        if self.hierarchy is not None:
+            levels = validate_hierarchy(self.hierarchy, self.n_agents)
+            if not self.stackelberg and len(levels) > 1:
+                raise ValueError(f"hierarchy '{format_hierarchy(levels)}' has several levels but this variant has no "
+                                 "leaders and followers (stackelberg=False): give one level, e.g. "
+                                 f"'{format_hierarchy(flat(self.n_agents))}', or use the Stackelberg variant")
+            object.__setattr__(self, "hierarchy", levels)
+
+    @property
+    def levels(self) -> tuple[tuple[int, ...], ...]:
+        """The hierarchy as levels of agent indices: the one given, else the chain 0|1|...|K-1 (Stackelberg) or one
+        level of all agents."""
+        if self.hierarchy is not None:
+            return self.hierarchy
+        return chain(self.n_agents) if self.stackelberg else flat(self.n_agents)
+
+    def above(self, agent: int) -> tuple[int, ...]:
+        """The agents on the levels above ``agent``'s, in decision order: the actions its actor reads."""
+        out: list[int] = []
+        for level in self.levels:
+            if agent in level:
+                return tuple(out)
+            out += list(level)
+        raise ValueError(f"agent {agent} is not in the hierarchy {format_hierarchy(self.levels)}")
+
+    def actor_in_dim(self, agent: int) -> int:
+        """Inputs of ``agent``'s actor: its observation and the actions of the levels above it."""
+        return self.obs_dim + self.action_dim * len(self.above(agent))
 
     @property
     def n_kinds(self) -> int:
@@ -101,8 +142,4 @@ class MADDPGConfig:
 
     @property
     def critic_obs_dim(self) -> int:
-        return 2 * self.obs_dim if self.critic_input == "joint" else self.obs_dim
-
-    @property
-    def follower_in_dim(self) -> int:
-        return self.obs_dim + (self.action_dim if self.stackelberg else 0)
+        return self.n_agents * self.obs_dim if self.critic_input == "joint" else self.obs_dim

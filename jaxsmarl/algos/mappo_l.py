@@ -3,7 +3,8 @@ advantage ``A_r - lambda A_c`` with a per-minibatch projected update of the mult
 
 For ``ppo_epochs`` epochs x ``num_minibatches`` minibatches (a fresh random partition per epoch), agent i:
 
-1. actor: ``L = -mean(factor * min(ratio A, clip(ratio, 1 +- eps) A)) - entropy_coef H``,
+1. actor: ``L = -mean(factor * min(ratio A, clip(ratio, 1 +- eps) A)) - entropy_coef H`` (``H``: the Gaussian's
+   entropy, or the categorical's averaged over the active samples),
    ``A = A_r - lambda_i A_c`` (no ``1 / (1 + lambda)`` normalisation), gradient-norm clip, Adam;
 2. multiplier, from the same forward pass (before the actor step):
    ``lambda_i <- max(0, lambda_i + lr_lambda [(J_c - d)(1 - gamma) + mean(ratio A_c)])`` (no upper bound);
@@ -18,7 +19,6 @@ import jax
 import jax.numpy as jnp
 
 from jaxsmarl.algos.ppo_base import PPOBase, PPOState
-from jaxsmarl.gaussian import gaussian_entropy, gaussian_log_prob
 from jaxsmarl.gradients import gradient_update_fn
 from jaxsmarl.losses import masked_mean
 
@@ -43,11 +43,11 @@ class MAPPOL(PPOBase):
             o, a, lo, ar, ac, f, m = (x[idx] for x in (obs, action, logp_old, adv_r, adv_c, factor, active))
 
             def loss(p):
-                mean, std = self.policy(p, o, for_update=True)
-                ratio = jnp.exp(gaussian_log_prob(a, mean, std) - lo)
+                dist = self.policy(p, o, for_update=True)
+                ratio = jnp.exp(self.head.log_prob(dist, a) - lo)
                 adv = ar - lam * ac
                 surr = jnp.minimum(ratio * adv, jnp.clip(ratio, 1.0 - cfg.clip, 1.0 + cfg.clip) * adv)
-                ent = gaussian_entropy(std)
+                ent = self.head.mean_entropy(dist, m)
                 return -masked_mean(f * surr, m) - cfg.entropy_coef * ent, ratio
 
             (pl, ratio), actor, a_opt = gradient_update_fn(loss, self.actor_tx, has_aux=True)(actor, a_opt)

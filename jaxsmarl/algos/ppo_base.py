@@ -1,8 +1,9 @@
 """The part of MAPPO-L and MACPO that does not depend on the actor update (docs/algorithms.md, MAPPO-L and MACPO).
 
-Per agent i: a Gaussian actor ``pi_i(a | o_i)`` and a centralised reward critic ``V_i(s)`` and cost critic
-``V^c_i(s)`` on the shared observation ``s = concat(o_1, ..., o_n)`` (normalised). All agents' networks are
-stacked along a leading agent axis (critics ``[n_agents, 2 (reward, cost)]``) with one Adam state per network.
+Per agent i of n: an actor ``pi_i(a | o_i)`` (a Gaussian on continuous actions, a categorical on discrete ones:
+:func:`jaxsmarl.policy_head.policy_head`) and a centralised reward critic ``V_i(s)`` and cost critic ``V^c_i(s)``
+on the shared observation ``s = concat(o_1, ..., o_n)`` (normalised). All agents' networks are stacked along a
+leading agent axis (critics ``[n_agents, 2 (reward, cost)]``) with one Adam state per network.
 
 One update (:meth:`PPOBase.update`) on a rollout ``traj`` (fields ``[T, E, ...]``, see
 :class:`train.onpolicy.Transition`):
@@ -14,10 +15,16 @@ One update (:meth:`PPOBase.update`) on a rollout ``traj`` (fields ``[T, E, ...]`
 2. the constraint's episode cost ``J_c``: over the episodes that ended in this rollout, the per-step cost
    averaged over agents summed over the episode (``per_agent_cost``: each agent's own), else the last value;
 3. agents updated in a random order (``sequential``, HAPPO-style): each surrogate is weighted by ``factor``,
-   the product of the previously updated agents' ratios ``pi_new / pi_old`` on the buffer; with
-   ``sequential=False`` the factor stays 1 (a simultaneous update: the agents' updates are then independent);
+   the product of the ratios ``pi_new / pi_old`` on the buffer of every agent updated before it in this order;
+   with ``sequential=False`` the factor stays 1 (a simultaneous update: the agents' updates are then
+   independent);
 4. the observation normaliser absorbs the rollout (after the update, so that the update sees the rollout's own
    normalisation and the ratios start at 1).
+
+With ``absent_agents`` (an env whose episodes leave some agents without a vehicle, ``traj.present``): an absent
+agent's steps are inactive, its observation enters the shared observation as zeros and its own normaliser not
+at all, and ``J_c`` counts only the episodes it drove in (the agent average: over the agents present in each
+episode).
 
 The actor update of one agent is the subclass's :meth:`agent_update`.
 """
@@ -34,11 +41,11 @@ import optax
 
 from jaxsmarl.algos.ppo_config import PPOConfig
 from jaxsmarl.gae import gae
-from jaxsmarl.gaussian import gaussian_log_prob, std_from_param
 from jaxsmarl.gradients import LoopCarry, gradient_update_fn
 from jaxsmarl.losses import standardize, value_loss
 from jaxsmarl.mlp import make_mlp
 from jaxsmarl.permutation import random_permutation
+from jaxsmarl.policy_head import policy_head
 from jaxsmarl.running_stats import RunningStats
 
 __all__ = ["PPOConfig", "PPOState", "Batch", "PPOBase"]
@@ -48,7 +55,7 @@ R, C = 0, 1  # kind axis of the critics: reward, cost
 
 @flax.struct.dataclass
 class PPOState:
-    actor: Any  # {"net": MLP params, "log_std": [k]}, stacked [n_agents, ...]
+    actor: Any  # {"net": MLP params} (+ "log_std": [k] for Gaussian policies), stacked [n_agents, ...]
     critic: Any  # MLP params stacked [n_agents, 2, ...]
     actor_opt: Any  # stacked [n_agents, ...] (MAPPO-L; unused by MACPO)
     critic_opt: Any  # stacked [n_agents, 2, ...]
@@ -64,7 +71,7 @@ class Batch:
 
     obs: jax.Array  # [N, B, D] normalised own observations
     share: jax.Array  # [B, N * D] normalised shared observation
-    action: jax.Array  # [N, B, k]
+    action: jax.Array  # [N, B, k] (continuous) or [N, B] (discrete)
     logp: jax.Array  # [N, B] behaviour log-probabilities
     adv: jax.Array  # [N, 2, B] standardised reward / cost advantages
     target: jax.Array  # [N, 2, B] value targets (normalised)
@@ -85,7 +92,8 @@ class PPOBase(abc.ABC):
 
     def __init__(self, config: PPOConfig):
         self.config = cfg = config
-        self.actor_net = make_mlp(cfg.obs_dim, cfg.hidden, cfg.layer_n, cfg.action_dim, 0.01, cfg.feature_norm)
+        self.head = policy_head(cfg.action_dim, cfg.num_actions, cfg.std_x_coef, cfg.std_y_coef)
+        self.actor_net = make_mlp(cfg.obs_dim, cfg.hidden, cfg.layer_n, self.head.out_dim, 0.01, cfg.feature_norm)
         self.critic_net = make_mlp(cfg.share_dim, cfg.hidden, cfg.layer_n, 1, 1.0, cfg.feature_norm)
         self.carry = LoopCarry(self.actor_net.layout)  # how networks travel through the minibatch loops
         self.actor_tx = optax.chain(optax.clip_by_global_norm(cfg.max_grad_norm),
@@ -101,7 +109,7 @@ class PPOBase(abc.ABC):
         dtype = jnp.zeros(()).dtype
 
         def actor_init(k):
-            return {"net": self.actor_net.init(k), "log_std": jnp.full((cfg.action_dim,), cfg.std_x_coef, dtype)}
+            return {"net": self.actor_net.init(k), **self.head.init(dtype)}
 
         actor = jax.vmap(actor_init)(jax.random.split(ka, n))
         critic = jax.vmap(jax.vmap(self.critic_net.init))(jax.random.split(kc, (n, 2)))
@@ -125,30 +133,34 @@ class PPOBase(abc.ABC):
         return state.obs_stats.normalize(obs) if self.config.obs_norm else obs
 
     def policy(self, actor_i, obs_n, for_update: bool = False):
-        """Mean ``[..., k]`` and std ``[k]`` of one agent's Gaussian on normalised observations.
+        """One agent's action distribution on normalised observations (the head's ``dist``: Gaussian mean
+        ``[..., k]`` and std ``[k]``, or logits ``[..., A]``).
 
         ``for_update=True`` (a ``[B, D]`` batch only) evaluates the same network in the form the update
         differentiates (``Network.apply_update``: reverse mode only in the column layout).
         """
-        cfg = self.config
         apply = self.actor_net.apply_update if for_update else self.actor_net.apply
-        return apply(actor_i["net"], obs_n), std_from_param(actor_i["log_std"], cfg.std_x_coef, cfg.std_y_coef)
+        return self.head.dist(actor_i, apply(actor_i["net"], obs_n))
 
-    def _all_means(self, state, obs_n):
-        """``obs_n [B, N, D]`` -> means ``[B, N, k]``, stds ``[N, k]``."""
-        mean, std = jax.vmap(self.policy, in_axes=(0, 1), out_axes=(1, 0))(state.actor, obs_n)
-        return mean, std
+    def _all_dists(self, state, obs_n):
+        """``obs_n [B, N, D]`` -> every agent's distribution, agent axis second (Gaussian std: first)."""
+        return jax.vmap(self.policy, in_axes=(0, 1), out_axes=self.head.agent_axes)(state.actor, obs_n)
 
     def act(self, state: PPOState, obs, key):
-        """Sample ``[E, N, k]`` actions (unbounded Gaussian; the env clips to [-1, 1]) and their log-probs."""
-        mean, std = self._all_means(state, self.normalize_obs(state, obs))
-        action = mean + std * jax.random.normal(key, mean.shape, mean.dtype)
-        return action, gaussian_log_prob(action, mean, std)
+        """Sample ``[E, N, k]`` (unbounded Gaussian; :meth:`env_action` clips to [-1, 1]) or ``[E, N]``
+        (categorical) actions and their log-probs."""
+        dist = self._all_dists(state, self.normalize_obs(state, obs))
+        action = self.head.sample(key, dist)
+        return action, self.head.log_prob(dist, action)
+
+    def env_action(self, action):
+        """What the environment receives for sampled ``action`` (Gaussian: clipped to the action box)."""
+        return self.head.env_action(action)
 
     def greedy_act(self, state: PPOState, obs):
-        """The Gaussian mean, clipped to the action box, for one ``[N, D]`` observation."""
-        mean, _ = self._all_means(state, self.normalize_obs(state, obs)[None])
-        return jnp.clip(mean[0], -1.0, 1.0)
+        """The most likely action (Gaussian: its mean clipped to the action box) for one ``[N, D]``
+        observation."""
+        return self.head.greedy(self._all_dists(state, self.normalize_obs(state, obs)[None]))[0]
 
     def values(self, critic, value_stats, share):
         """Denormalised ``[..., N, 2]`` values of every critic at ``share [..., N*D]``."""
@@ -164,6 +176,8 @@ class PPOBase(abc.ABC):
         T, E, N, D = traj.obs.shape
         obs_n = self.normalize_obs(state, traj.obs)
         next_n = self.normalize_obs(state, traj.next_obs)
+        if cfg.absent_agents:  # an absent agent is zeros in the shared observation, whatever it observed
+            obs_n, next_n = (jnp.where(traj.present[..., None], x, 0.0) for x in (obs_n, next_n))
         share, next_share = obs_n.reshape(T, E, N * D), next_n.reshape(T, E, N * D)
         v = self.values(state.critic, state.value_stats, share)  # [T, E, N, 2]
         v_next = self.values(state.critic, state.value_stats, next_share)
@@ -187,12 +201,31 @@ class PPOBase(abc.ABC):
 
         # J_c over the episodes that ended in this rollout (the reference's aver_episode_costs).
         ended = traj.ep_returned.astype(v.dtype)  # [T, E]
-        n_ended = jnp.sum(ended)
         ep_cost = traj.ep_cost.astype(v.dtype)  # [T, E, N]
+        if cfg.absent_agents:
+            jc, counted = self._episode_cost_present(ended, ep_cost, traj.present.astype(v.dtype))
+            jc = jnp.where(counted, jc, state.episode_cost)
+            return state.replace(value_stats=value_stats, episode_cost=jc), batch
+        n_ended = jnp.sum(ended)
         per_agent = jnp.sum(ended[..., None] * ep_cost, axis=(0, 1)) / jnp.maximum(n_ended, 1.0)
         jc = per_agent if cfg.per_agent_cost else jnp.full((N,), jnp.mean(per_agent), v.dtype)
         jc = jnp.where(n_ended > 0, jc, state.episode_cost)
         return state.replace(value_stats=value_stats, episode_cost=jc), batch
+
+    def _episode_cost_present(self, ended, ep_cost, present):
+        """``J_c [N]`` over the ended episodes counting only the agents present in each (``ended [T, E]``,
+        ``ep_cost``, ``present [T, E, N]``) and whether any episode counted, per agent ``[N]``."""
+        N = ep_cost.shape[-1]
+        w = ended[..., None] * present  # [T, E, N]: episodes agent i drove in
+        if self.config.per_agent_cost:
+            n_i = jnp.sum(w, axis=(0, 1))
+            return jnp.sum(w * ep_cost, axis=(0, 1)) / jnp.maximum(n_i, 1.0), n_i > 0
+        n_present = jnp.sum(present, axis=-1)  # [T, E]
+        mean_cost = jnp.sum(present * ep_cost, axis=-1) / jnp.maximum(n_present, 1.0)  # agent mean per episode
+        counts = ended * (n_present > 0)
+        n_ended = jnp.sum(counts)
+        jc = jnp.sum(counts * mean_cost) / jnp.maximum(n_ended, 1.0)
+        return jnp.full((N,), jc, ep_cost.dtype), jnp.full((N,), n_ended > 0)
 
     # ------------------------------------------------------------------------------------------------------
     def critic_step(self, critic_i, opt_i, share, target, old_value, active):
@@ -218,8 +251,7 @@ class PPOBase(abc.ABC):
         return self.carry.unpack_stack(critic, opt)
 
     def log_prob(self, actor_i, obs, action):
-        mean, std = self.policy(actor_i, obs)
-        return gaussian_log_prob(action, mean, std)
+        return self.head.log_prob(self.policy(actor_i, obs), action)
 
     @abc.abstractmethod
     def agent_update(self, state: PPOState, i, batch: Batch, factor, key):
@@ -251,7 +283,9 @@ class PPOBase(abc.ABC):
         # infos are in update order; put them in agent order.
         infos = jax.tree.map(lambda x: jnp.zeros_like(x).at[idx].set(x), infos)
         if cfg.obs_norm:
-            state = state.replace(obs_stats=state.obs_stats.update(traj.obs.reshape((-1,) + traj.obs.shape[2:])))
+            mask = traj.present.reshape((-1,) + traj.present.shape[2:]) if cfg.absent_agents else None
+            state = state.replace(obs_stats=state.obs_stats.update(traj.obs.reshape((-1,) + traj.obs.shape[2:]),
+                                                                   mask))
         infos["episode_cost"] = state.episode_cost
         infos["order"] = order
         return state, infos

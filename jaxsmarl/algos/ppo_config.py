@@ -29,6 +29,8 @@ class PPOConfig:
     n_agents: int = 2  # from the environment
     obs_dim: int = 8  # from the environment
     action_dim: int = 1  # from the environment
+    num_actions: int = 0  # from the environment: discrete actions per agent (categorical policy); 0: continuous
+    absent_agents: bool = False  # from the environment: info["alive"] flags agents absent from an episode
     rollout_length: int = option(32, "steps per env between updates; one update uses num_envs * rollout_length "
                                      "samples (reference: 16 threads x 1000 steps)", Int(1))
     hidden: int = option(64, "hidden width of every actor and critic (reference hidden_size 64)", Int(1))

@@ -1,4 +1,5 @@
-"""CS-MADDPG (paper Algorithm 2) and its relatives for the continuous scenarios (intersection, racetrack).
+"""CS-MADDPG (paper Algorithm 2) and its relatives for the continuous scenarios (intersection, racetrack,
+racetrack-v0 with K agents).
 
 * ``cs-maddpg``: constrained Stackelberg MADDPG (follower conditioned on the leader's action, leader gradient
   through the follower's actor, cost critics and Lagrange multipliers);
@@ -6,13 +7,19 @@
 * ``c-maddpg``: constrained MADDPG without the leader/follower structure (each actor on its own observation);
 * ``maddpg``: plain MADDPG.
 
+With K agents (``--agents``) the Stackelberg variants take any ``--hierarchy`` (default the chain 0|1|...|K-1); the
+others have one level, the flat counterpart.
+
 Defaults are the authors' effective hyper-parameters (docs/algorithms.md); per-scenario values (threshold,
 budget) are in ``train/configs/<scenario>_<algo>.json``.
 """
 
 from __future__ import annotations
 
+import math
+
 from jaxsmarl.algos.maddpg_config import MADDPGConfig
+from jaxsmarl.hierarchy import flat, format_hierarchy, validate_hierarchy
 from jaxsmarl.options import option_table
 from train.config import AlgoSpec, register
 
@@ -45,6 +52,14 @@ def check(cfg: dict) -> None:
     if "lambda_init" in cfg and cfg["lambda_init"] > cfg["lambda_max"]:
         raise ValueError(f"'lambda_init' ({cfg['lambda_init']}) exceeds lambda_max ({cfg['lambda_max']}); the "
                          "multiplier lives in [0, lambda_max]")
+    if cfg["hierarchy"] is not None:
+        levels = validate_hierarchy(cfg["hierarchy"], cfg["agents"])
+        if not VARIANTS[cfg["algo"]][0] and len(levels) > 1:
+            stackelberg = {"c-maddpg": "cs-maddpg", "maddpg": "s-maddpg"}[cfg["algo"]]
+            raise ValueError(f"'{cfg['algo']}' has no leaders and followers, so its hierarchy is one level "
+                             f"('{format_hierarchy(flat(cfg['agents']))}'), got '{format_hierarchy(levels)}'; use "
+                             f"{stackelberg} for a hierarchy")
+        cfg["hierarchy"] = format_hierarchy(levels)
 
 
 def make_agent(config: dict, env):
@@ -52,12 +67,13 @@ def make_agent(config: dict, env):
 
     if env.discrete:
         raise ValueError(f"scenario '{config['scenario']}' has discrete actions but '{config['algo']}' needs "
-                         "continuous actions; use intersection or racetrack")
+                         "continuous actions; use intersection, racetrack or racetrack-v0")
     stackelberg, constrained = VARIANTS[config["algo"]]
     keys = CONSTRAINED_DEFAULTS if constrained else UNCONSTRAINED_DEFAULTS
     options = {k: tuple(config[k]) if isinstance(config[k], list) else config[k] for k in keys}
-    return MADDPGAgent(MADDPGConfig(action_dim=int(env.action_shape[-1]), obs_dim=int(env.obs_shape[-1]),
-                                    stackelberg=stackelberg, constrained=constrained, **options))
+    return MADDPGAgent(MADDPGConfig(action_dim=int(env.action_shape[-1]), obs_dim=math.prod(env.obs_shape[1:]),
+                                    n_agents=int(env.num_agents), stackelberg=stackelberg, constrained=constrained,
+                                    **options))
 
 
 register(
