@@ -41,17 +41,25 @@ def on_lane(lanes: L.LaneTable, query_lane, s, lat):
 def front_rear(s_ego, s, on):
     """Indices of the preceding and following objects (``-1``: none) from the ego's coordinate
     ``s_ego`` ``[...]`` and the objects' coordinates ``s`` and eligibility ``on`` ``[..., N]``
-    (``on`` must already exclude the ego itself and empty slots)."""
-    n = s.shape[-1]
-    idx = jnp.arange(n, dtype=jnp.int32)
-    s_ego = jnp.asarray(s_ego)[..., None]
-    ahead = on & (s_ego <= s)
-    s_front = jnp.min(jnp.where(ahead, s, jnp.inf), axis=-1, keepdims=True)
-    front = jnp.max(jnp.where(ahead & (s == s_front), idx, -1), axis=-1)
-    behind = on & (s < s_ego)
-    s_rear = jnp.max(jnp.where(behind, s, -jnp.inf), axis=-1, keepdims=True)
-    rear = jnp.min(jnp.where(behind & (s == s_rear), idx, n), axis=-1)
-    return front, jnp.where(rear == n, -1, rear)
+    (``on`` must already exclude the ego itself and empty slots).
+
+    One pass over the objects in list order keeps the best so far, elementwise over ``[...]``:
+    XLA fuses the unrolled chain into one loop, where reductions along the short object axis
+    would each run as a separate, poorly vectorised loop. A later object at the same ``s``
+    replaces the front (the last one wins) but not the rear (the first one wins).
+    """
+    s_ego = jnp.asarray(s_ego)
+    best_front = jnp.full(s_ego.shape, jnp.inf, s.dtype)
+    best_rear = jnp.full(s_ego.shape, -jnp.inf, s.dtype)
+    front = jnp.full(s_ego.shape, -1, jnp.int32)
+    rear = jnp.full(s_ego.shape, -1, jnp.int32)
+    for j in range(s.shape[-1]):
+        s_j, on_j = s[..., j], on[..., j]
+        ahead = on_j & (s_ego <= s_j) & (s_j <= best_front)
+        behind = on_j & (s_j < s_ego) & ((s_j > best_rear) | (rear < 0))
+        best_front, front = jnp.where(ahead, s_j, best_front), jnp.where(ahead, j, front)
+        best_rear, rear = jnp.where(behind, s_j, best_rear), jnp.where(behind, j, rear)
+    return front, rear
 
 
 def neighbour_vehicles(lanes: L.LaneTable, ego, query_lane, px, py, valid):
