@@ -50,16 +50,11 @@ def snapshot(name: str, directory: str) -> str:
     return dst
 
 
-def is_task(name: str) -> bool:
-    """highway-env's traffic tasks (``highway-v0``, ...) as opposed to the authors' two-agent scenarios."""
-    return "-v" in name
-
-
 def auto_reset(pkg, name: str):
     """The auto-reset wrapper env_throughput.py uses for ``name``."""
     from env_throughput import TaskAutoReset
 
-    return TaskAutoReset if is_task(name) else pkg.AutoResetWrapper
+    return TaskAutoReset if name in pkg.available_tasks() else pkg.AutoResetWrapper
 
 
 def runner(pkg, name: str, num_envs: int, num_steps: int):
@@ -88,7 +83,7 @@ def trajectories(pkg, name: str, num_envs: int, num_steps: int):
             action = jax.vmap(policy)(jax.random.split(k_act, num_envs), obs)
             obs, state, reward, cost, done, _ = jax.vmap(wrapped.step, in_axes=(0, 0, 0, None))(
                 jax.random.split(k_step, num_envs), state, action, params)
-            e = state if is_task(name) else state.env_state
+            e = state if name in pkg.available_tasks() else state.env_state
             return (obs, state), dict(obs=obs, reward=reward, cost=cost, done=done, x=e.x, y=e.y, heading=e.heading,
                                       speed=e.speed, lane=e.lane, target_lane=e.target_lane, crashed=e.crashed,
                                       impact=e.impact)

@@ -220,8 +220,6 @@ def test_sweep_equals_the_separate_run_under_x64(x64, tmp_path, key, values):
     assert cli.main(small_args(small) + ["--out", alone, "--set", f"{key}={values[1]}"]) == 0
     folder = os.path.join(out, json.load(open(os.path.join(out, "sweep.json")))["configurations"][1]["folder"])
     assert_same_run(folder, alone, (key, values[1]))
-    from train.restore import restore_run
-
     want = restore_run(alone)[2]
     assert any(np.asarray(x).dtype == np.float64 for x in jax.tree.leaves(want))  # the program ran in float64
     state, meta = sweep_state(out, want, len(values))
