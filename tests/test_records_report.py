@@ -65,7 +65,15 @@ def test_report_from_a_small_fixture(tmp_path, capsys):
     assert "No GIF for CSQ (not trained for this test)" in text and "No GIF for CS-MADDPG" in text
     assert "- S-MADDPG (Bi-AC): 1 seed x 20,000 steps" in text
     assert "Not in this study: SQ (Bi-AC: CSQ, d=100) (no committed training record)" in text
-    assert "../shared" not in text and "§" not in text  # no citation of files users do not have
+    # every link points into the repository: the figures written here, or docs pages seen from docs/results/
+    for link in re.findall(r"\]\(([^)#]+)", text):
+        if link.startswith("figures/"):
+            assert os.path.exists(out / link), link
+        elif not link.startswith("http"):
+            root = os.path.realpath(ROOT)
+            target = os.path.normpath(os.path.join(root, "docs", "results", link))
+            assert target.startswith(root + os.sep) and os.path.exists(target), link
+    assert "§" not in text  # no section citations of documents users do not have
     assert re.search(r"on \d{4}-\d\d-\d\d", text) is None  # no date: regenerating changes nothing
 
     # the table's total return is the IQM [95% CI] of summary.json's per-seed last-10% means
