@@ -85,14 +85,15 @@ def parse_args(argv=None) -> argparse.Namespace:
     p = argparse.ArgumentParser(prog="python -m train", description=__doc__.split("\n\n")[1],
                                 formatter_class=argparse.RawDescriptionHelpFormatter, epilog=EPILOG)
     p.add_argument("--scenario", choices=list(SCENARIOS), default=None,
-                   help="driving scenario (default merge): merge, roundabout, highway (highway-v0 with K "
-                        "controlled vehicles) and merge-cavs (MARL_CAVs' merge, up to K CAVs) have discrete actions, "
-                        "intersection, racetrack and racetrack-v0 (racetrack-v0 with K controlled vehicles) continuous "
-                        "ones; the algorithm must match")
+                   help="driving scenario (default merge): merge, roundabout, highway and merge-v0 (highway-env's "
+                        "tasks with K controlled vehicles among traffic) and merge-cavs (MARL_CAVs' merge, up to K "
+                        "CAVs) have discrete actions, intersection, racetrack and racetrack-v0 (racetrack-v0 with K "
+                        "controlled vehicles) continuous ones; the algorithm must match")
     p.add_argument("--algo", choices=list(ALGOS), default=None, help=_algos_help() + " (default csq)")
     p.add_argument("--agents", type=int, default=None, metavar="K",
-                   help="controlled agents (default: the scenario's, 2; --scenario highway takes 2..8, CSQ up to 4; "
-                        "merge-cavs 3 or 4, the most CAVs of its easy or medium traffic; racetrack-v0 2..8, default 3)")
+                   help="controlled agents (default: the scenario's, 2; --scenario highway and merge-v0 take 2..8, "
+                        "CSQ up to 4; merge-cavs 3 or 4, the most CAVs of its easy or medium traffic; racetrack-v0 "
+                        "2..8, default 3)")
     p.add_argument("--hierarchy", default=None, metavar="LEVELS",
                    help="who decides before whom (CSQ, SQ, S-MADDPG, CS-MADDPG): levels of agent indices, '|' "
                         "between levels and ',' within one, e.g. '0|1|2' (vertical chain, the default), '0,1|2' (two "

@@ -5,6 +5,8 @@ from __future__ import annotations
 import os
 import shlex
 
+from train.config import TRAFFIC_SCENARIOS
+
 __all__ = ["FILES", "next_steps"]
 
 # Run folder entries (train.run) and what each holds, in the order they are listed.
@@ -53,7 +55,7 @@ def next_steps(out: str, config: dict) -> str:
             (f"python -m train.experiments --only {config['scenario']}",
              "every algorithm on this scenario: runs, figures, RESULTS.md")]
     # the K-agent traffic tasks have no renderer and no study yet
-    if config["scenario"] in ("highway", "merge-cavs", "racetrack-v0"):
+    if config["scenario"] in TRAFFIC_SCENARIOS:
         cmds = cmds[1:3]
     width = max(len(c) for c, _ in cmds)
     lines.append("next:")

@@ -31,6 +31,7 @@ import jax.numpy as jnp
 
 from envs_jax.time_limit import episode_step_limit
 from jaxsmarl import metrics
+from train.config import TRAFFIC_SCENARIOS
 
 __all__ = ["Trainer", "make_env", "config_env", "make_evaluate", "make_train_fn", "seed_keys",
            "episode_step_limit", "with_matmul_precision", "chunk_layout", "assemble_trainer"]
@@ -54,9 +55,15 @@ class Trainer(NamedTuple):
     seeds_in_sequence: bool = False
 
 
+# highway-env's merge-v0 has no time limit; training and evaluation need one. Agents drive at 20 m/s or more and
+# leave the task at x = 370 m (at most 17 s from the farthest start), so the limit only cuts stalled episodes.
+MERGE_V0_DURATION = 30.0
+
+
 def make_env(scenario: str, agents: int | None = None, env_params: dict | None = None):
     """``(env, auto-reset env, params)`` from :mod:`envs_jax`. ``highway`` is highway-v0 with ``agents``
-    controlled vehicles (default 2), ``merge-cavs`` MARL_CAVs' merge with at most ``agents`` CAVs (3: easy traffic,
+    controlled vehicles (default 2), ``merge-v0`` likewise highway-env's merge-v0 (with a time limit of
+    ``MERGE_V0_DURATION`` seconds), ``merge-cavs`` MARL_CAVs' merge with at most ``agents`` CAVs (3: easy traffic,
     the default; 4: medium), ``racetrack-v0`` highway-env's racetrack with ``agents`` controlled vehicles (default
     3), their observations flattened per agent (:mod:`envs_jax.traffic_autoreset`).
     ``env_params``: values replacing fields of the default params (a configuration's ``env``,
@@ -64,11 +71,14 @@ def make_env(scenario: str, agents: int | None = None, env_params: dict | None =
     import envs_jax
     from train.env_params import with_values
 
-    if scenario in ("highway", "merge-cavs", "racetrack-v0"):
+    if scenario in TRAFFIC_SCENARIOS:
         from envs_jax.traffic_autoreset import TrafficAutoResetWrapper
 
         if scenario == "highway":
             env = envs_jax.make("highway-v0", controlled_vehicles=2 if agents is None else int(agents))
+        elif scenario == "merge-v0":
+            env = envs_jax.make("merge-v0", controlled_vehicles=2 if agents is None else int(agents),
+                                duration=MERGE_V0_DURATION)
         elif scenario == "racetrack-v0":
             env = envs_jax.make("racetrack-v0", controlled_vehicles=3 if agents is None else int(agents))
         else:

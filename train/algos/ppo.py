@@ -22,7 +22,7 @@ MACPO_DEFAULTS, MACPO_HELP, MACPO_RULES = option_table(PPOConfig, ("macpo",))
 
 # The discrete scenarios these algorithms take: the K-agent traffic tasks (the authors' two-agent merge and
 # roundabout have no on-policy configuration).
-DISCRETE_SCENARIOS = ("highway", "merge-cavs")
+DISCRETE_SCENARIOS = ("highway", "merge-v0", "merge-cavs")
 
 
 def check(cfg: dict) -> None:
