@@ -9,7 +9,9 @@ one row, ``obs [K, vehicles_count * F]``, the shape the joint-action critics tak
 ``info["returned_episode"]`` flags the step on which an episode ended, with ``episode_return[K]``,
 ``episode_cost[K]``, ``episode_length``, ``episode_crash`` (any agent crashed), ``episode_arrived[K]`` (always
 False: a traffic task has no destination), ``episode_offroad`` (any agent left the road) and
-``episode_distance[K]`` (each agent's path length, the sum of its per-decision displacements).
+``episode_distance[K]`` (each agent's path length, the sum of its per-decision displacements), and for the
+average speed ``episode_speed_sum[K]`` (each agent's speed after every step it drove: present at the step's start
+and not terminated at an earlier step) with ``episode_active_steps[K]`` (the number of those steps).
 """
 
 from __future__ import annotations
@@ -31,6 +33,9 @@ class TrafficAutoResetState:
     episode_crash: jax.Array  # any agent crashed so far
     episode_offroad: jax.Array  # any agent off the road at any step
     episode_distance: jax.Array  # [K] path length driven (m)
+    episode_speed_sum: jax.Array  # [K] speeds after the steps the agent drove
+    episode_active_steps: jax.Array  # [K] steps the agent drove (present, not yet terminated)
+    episode_terminated: jax.Array  # [K] terminated at some step of this episode
 
 
 class TrafficAutoResetWrapper:
@@ -51,7 +56,9 @@ class TrafficAutoResetWrapper:
         obs, st = self.env.reset(key, params)
         zeros = jnp.zeros(self.env.num_agents, st.x.dtype)
         return self._flat(obs), TrafficAutoResetState(st, zeros, zeros, jnp.zeros((), jnp.int32),
-                                                      jnp.zeros((), bool), jnp.zeros((), bool), zeros)
+                                                      jnp.zeros((), bool), jnp.zeros((), bool), zeros, zeros,
+                                                      jnp.zeros(self.env.num_agents, jnp.int32),
+                                                      jnp.zeros(self.env.num_agents, bool))
 
     def step(self, key, state: TrafficAutoResetState, action, params=None):
         key_step, key_reset = jax.random.split(key)
@@ -65,6 +72,10 @@ class TrafficAutoResetWrapper:
         offroad = state.episode_offroad | jnp.any(~info["on_road"])
         prev = state.env_state
         dist = state.episode_distance + jnp.hypot(st.x[idx] - prev.x[idx], st.y[idx] - prev.y[idx])
+        drove = prev.alive[idx] & ~state.episode_terminated
+        speed_sum = state.episode_speed_sum + jnp.where(drove, st.speed[idx], 0.0)
+        active = state.episode_active_steps + drove.astype(jnp.int32)
+        terminated = state.episode_terminated | info["terminated"]
         obs_reset, st_reset = self.reset(key_reset, params)
         new_st = jax.tree_util.tree_map(lambda a, b: jnp.where(done, a, b), st_reset.env_state, st)
         new_obs = jnp.where(done, obs_reset, obs)
@@ -72,8 +83,8 @@ class TrafficAutoResetWrapper:
         info.update(terminal_obs=obs, returned_episode=done, episode_return=ret, episode_cost=cst,
                     episode_length=length, episode_crash=crash,
                     episode_arrived=jnp.zeros(self.env.num_agents, bool), episode_offroad=offroad,
-                    episode_distance=dist)
+                    episode_distance=dist, episode_speed_sum=speed_sum, episode_active_steps=active)
         keep = lambda x: jnp.where(done, jnp.zeros_like(x), x)
         new_state = TrafficAutoResetState(new_st, keep(ret), keep(cst), keep(length), keep(crash), keep(offroad),
-                                          keep(dist))
+                                          keep(dist), keep(speed_sum), keep(active), keep(terminated))
         return new_obs, new_state, reward, cost, done, info

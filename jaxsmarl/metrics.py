@@ -22,7 +22,8 @@ import jax.numpy as jnp
 import numpy as np
 
 __all__ = [
-    "EPISODE_FIELDS", "episode_record", "episodes_from_steps", "EpisodeLog", "bootstrap_ci", "summarize",
+    "EPISODE_FIELDS", "agent_fields", "record_fields", "episode_record", "episodes_from_steps", "EpisodeLog",
+    "bootstrap_ci", "summarize",
     "format_duration", "progress_line", "window_means", "write_json", "atomic_open",
 ]
 
@@ -36,17 +37,37 @@ INT_FIELDS = ("crash", "leader_arrived", "follower_arrived", "length", "offroad"
 ID_FIELDS = ("seed", "episode", "env", "end_step")
 
 
+def agent_fields(num_agents: int) -> tuple[str, ...]:
+    """The columns the K-agent traffic scenarios add: each agent's return and cost, then ``speed``."""
+    return (tuple(f"return_{k}" for k in range(num_agents)) + tuple(f"cost_{k}" for k in range(num_agents))
+            + ("speed",))
+
+
+def record_fields(keys: Iterable[str]) -> tuple[str, ...]:
+    """The episode columns among ``keys`` (a record's or a row's), in table order: :data:`EPISODE_FIELDS`, then
+    the per-agent columns of :func:`agent_fields`."""
+    keys = set(keys)
+    n = 0
+    while f"return_{n}" in keys:
+        n += 1
+    extra = agent_fields(n) if "speed" in keys else ()
+    return tuple(k for k in EPISODE_FIELDS + extra if k in keys)
+
+
 def episode_record(info: Mapping[str, Any]) -> dict:
     """Fixed-shape per-step record from the auto-reset wrapper's ``info`` (valid where ``returned``).
 
     With K > 2 agents (per-agent statistics ``[..., K]``) the ``leader_*`` columns are agent 0's and the
-    ``follower_*`` columns the sum over agents 1..K-1 (``*_arrived``: any of them); ``total_return`` sums all."""
+    ``follower_*`` columns the sum over agents 1..K-1 (``*_arrived``: any of them); ``total_return`` sums all.
+    The traffic scenarios' wrapper (:mod:`envs_jax.traffic_autoreset`) also reports each agent's return and cost
+    (``return_k``, ``cost_k``) and ``speed``: the mean speed over the agent-steps in which an agent drove (present
+    and not yet terminated), docs/algorithms.md."""
     ret = jnp.asarray(info["episode_return"], jnp.float32)
     cost = jnp.asarray(info["episode_cost"], jnp.float32)
     arrived = jnp.asarray(info["episode_arrived"], jnp.float32)
     dist = jnp.asarray(info["episode_distance"], jnp.float32)
     others = lambda x: jnp.sum(x[..., 1:], axis=-1)
-    return {
+    out = {
         "returned": jnp.asarray(info["returned_episode"], bool),
         "leader_return": ret[..., 0], "follower_return": others(ret), "total_return": ret[..., 0] + others(ret),
         "leader_cost": cost[..., 0], "follower_cost": others(cost),
@@ -56,6 +77,14 @@ def episode_record(info: Mapping[str, Any]) -> dict:
         "offroad": jnp.asarray(info["episode_offroad"], jnp.float32),
         "leader_distance": dist[..., 0], "follower_distance": others(dist),
     }
+    if "episode_speed_sum" in info:
+        for k in range(ret.shape[-1]):
+            out[f"return_{k}"] = ret[..., k]
+            out[f"cost_{k}"] = cost[..., k]
+        speed_sum = jnp.sum(jnp.asarray(info["episode_speed_sum"], jnp.float32), axis=-1)
+        active = jnp.sum(jnp.asarray(info["episode_active_steps"], jnp.float32), axis=-1)
+        out["speed"] = speed_sum / jnp.maximum(active, 1.0)
+    return out
 
 
 def episodes_from_steps(records: Mapping[str, Any], first_iter: int, num_envs: int, seeds: Sequence[int] | None = None,
@@ -71,14 +100,15 @@ def episodes_from_steps(records: Mapping[str, Any], first_iter: int, num_envs: i
     seeds = list(range(n_seeds)) if seeds is None else list(seeds)
     if episode_counts is None:
         episode_counts = [0] * n_seeds
-    cols = {k: np.asarray(records[k]) for k in EPISODE_FIELDS}
+    fields = record_fields(records)
+    cols = {k: np.asarray(records[k]) for k in fields}
     rows = []
     for s in range(n_seeds):
         t_idx, e_idx = np.nonzero(returned[s])  # row-major: time first, then env
         for t, e in zip(t_idx, e_idx):
             row = {"seed": seeds[s], "episode": episode_counts[s], "env": int(e),
                    "end_step": int((first_iter + t + 1) * num_envs)}
-            for k in EPISODE_FIELDS:
+            for k in fields:
                 v = float(cols[k][s, t, e])
                 row[k] = int(round(v)) if k in INT_FIELDS else v
             rows.append(row)
@@ -102,6 +132,11 @@ class EpisodeLog:
         self.rows.extend(new)
         return new
 
+    @property
+    def fields(self) -> tuple[str, ...]:
+        """The episode columns of this log: :data:`EPISODE_FIELDS`, plus the per-agent ones of a traffic run."""
+        return record_fields(self.rows[0]) if self.rows else EPISODE_FIELDS
+
     def per_seed(self, field: str) -> list[np.ndarray]:
         out = [[] for _ in range(self.num_seeds)]
         for r in self.rows:
@@ -117,7 +152,7 @@ class EpisodeLog:
 
     def write_csv(self, path: str | os.PathLike) -> None:
         with atomic_open(path, newline="") as f:
-            w = csv.DictWriter(f, fieldnames=list(ID_FIELDS + EPISODE_FIELDS))
+            w = csv.DictWriter(f, fieldnames=list(ID_FIELDS + self.fields))
             w.writeheader()
             for r in sorted(self.rows, key=lambda r: (r["seed"], r["episode"])):
                 w.writerow(r)
@@ -159,8 +194,10 @@ def window_means(per_seed: Sequence[np.ndarray], frac: float = 0.1, last: bool =
     return out
 
 
-def summarize(log: EpisodeLog, frac: float = 0.1, fields: Sequence[str] = EPISODE_FIELDS) -> dict:
-    """``{field: {"first": (mean, lo, hi), "last": (mean, lo, hi), "last_per_seed": [...]}, "episodes": [...]}``."""
+def summarize(log: EpisodeLog, frac: float = 0.1, fields: Sequence[str] | None = None) -> dict:
+    """``{field: {"first": (mean, lo, hi), "last": (mean, lo, hi), "last_per_seed": [...]}, "episodes": [...]}``
+    for ``fields`` (default: the log's columns)."""
+    fields = log.fields if fields is None else fields
     out: dict[str, Any] = {"episodes_per_seed": [int(len(v)) for v in log.per_seed("length")], "window": frac}
     for f in fields:
         ps = log.per_seed(f)

@@ -37,13 +37,14 @@ def eval_rows(rec: dict, config: dict) -> tuple[list[dict], dict]:
     episode, and per field the per-seed means with a bootstrap interval across seeds."""
     rows = []
     n = config["eval_episodes"]
+    fields = metrics.record_fields(rec)
     for s in range(config["num_seeds"]):
         for e in range(n):
             row = {"seed": s, "episode": e, "finished": bool(rec["returned"][s, e])}
-            row.update({k: float(rec[k][s, e]) for k in metrics.EPISODE_FIELDS})
+            row.update({k: float(rec[k][s, e]) for k in fields})
             rows.append(row)
     summ = {}
-    for k in metrics.EPISODE_FIELDS:
+    for k in fields:
         per_seed = [float(np.mean(rec[k][s, :n])) for s in range(config["num_seeds"])]
         summ[k] = {"mean_ci": metrics.bootstrap_ci(per_seed), "per_seed": per_seed}
     summ["unfinished_episodes"] = int(n * config["num_seeds"] - np.sum(rec["returned"][:, :n]))

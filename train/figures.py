@@ -79,7 +79,7 @@ def load_run(run_dir: str) -> dict | None:
             summary = json.load(f)
     log = metrics.EpisodeLog.read_csv(csv_path, int(config["num_seeds"]))
     cols = {k: np.asarray([r[k] for r in log.rows], np.float64)
-            for k in metrics.ID_FIELDS + metrics.EPISODE_FIELDS}
+            for k in metrics.ID_FIELDS + log.fields}
     learner = LearnerLog.read_csv(os.path.join(run_dir, "learner.csv"))
     return {"dir": run_dir, "config": config, "summary": summary, "episodes": cols, "log": log, "learner": learner}
 

@@ -59,13 +59,13 @@ def _columns(rows: list[dict], fields) -> dict[str, np.ndarray]:
 
 def _binned_episodes(path: str) -> dict[str, np.ndarray]:
     """``episodes_binned.csv`` as pseudo-episodes: one per (seed, bin), at the bin's centre, weighted."""
-    from jaxsmarl.metrics import EPISODE_FIELDS
+    from jaxsmarl.metrics import record_fields
 
     with open(path, newline="") as f:
         rows = list(csv.DictReader(f))
     if not rows:
         raise ValueError(f"{path} has no rows")
-    fields = [k for k in EPISODE_FIELDS if f"mean_{k}" in rows[0]]
+    fields = record_fields(k[len("mean_"):] for k in rows[0] if k.startswith("mean_"))
     cols = {k: np.asarray([float(r[f"mean_{k}"]) for r in rows], np.float64) for k in fields}
     seed = np.asarray([int(r["seed"]) for r in rows], np.float64)
     lo = np.asarray([float(r["step_from"]) for r in rows])
@@ -82,7 +82,7 @@ def load_record(record_dir: str) -> dict | None:
 
     ``episodes`` is None when the folder holds neither episode file (the tables still work, the curve is
     omitted)."""
-    from jaxsmarl.metrics import EPISODE_FIELDS, ID_FIELDS
+    from jaxsmarl.metrics import ID_FIELDS, record_fields
 
     summary_path = os.path.join(record_dir, "summary.json")
     if not os.path.exists(summary_path):
@@ -91,12 +91,12 @@ def load_record(record_dir: str) -> dict | None:
     cfg_path = os.path.join(record_dir, "config.json")
     config = _read_json(cfg_path) if os.path.exists(cfg_path) else summary["config"]
     s = summary["summary"]
-    final = {k: s[k]["last_per_seed"] for k in EPISODE_FIELDS if isinstance(s.get(k), dict)}
+    final = {k: s[k]["last_per_seed"] for k in record_fields(s) if isinstance(s.get(k), dict)}
     raw, binned = os.path.join(record_dir, "episodes.csv"), os.path.join(record_dir, "episodes_binned.csv")
     if os.path.exists(raw):
         with open(raw, newline="") as f:
             rows = list(csv.DictReader(f))
-        episodes = _columns(rows, ID_FIELDS + tuple(k for k in EPISODE_FIELDS if rows and k in rows[0]))
+        episodes = _columns(rows, ID_FIELDS + (record_fields(rows[0]) if rows else ()))
     elif os.path.exists(binned):
         episodes = _binned_episodes(binned)
     else:

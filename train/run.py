@@ -3,7 +3,8 @@
 Run folder layout (``--out``)::
 
     config.json       the resolved configuration
-    episodes.csv      one row per finished training episode and seed (jaxsmarl.metrics.EPISODE_FIELDS)
+    episodes.csv      one row per finished training episode and seed (jaxsmarl.metrics.EPISODE_FIELDS; the
+                      traffic scenarios add per-agent returns and costs and the average speed)
     summary.json      first/last-10% statistics with 95% bootstrap CIs across seeds, timing, evaluation
     learner.csv       per chunk, seed and agent: the Lagrange multiplier and cost estimate (jaxsmarl.learner_log)
     eval.csv          greedy evaluation episodes per seed (if eval_episodes > 0)

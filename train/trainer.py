@@ -165,8 +165,9 @@ def make_evaluate(wrapped, params, act: Callable, episodes: int, max_steps: int)
                 rec = jax.tree.map(lambda new, old: jnp.where(take, new, old), er, rec)
                 return (obs, st, rec, found | er["returned"]), None
 
-            rec0 = {k: jnp.zeros((), bool if k == "returned" else jnp.float32)
-                    for k in ("returned",) + metrics.EPISODE_FIELDS}
+            shapes = jax.eval_shape(lambda: metrics.episode_record(
+                wrapped.step(k_run, st, act(agent_state, obs), params)[5]))
+            rec0 = jax.tree.map(lambda x: jnp.zeros(x.shape, x.dtype), shapes)
             (_, _, rec, _), _ = jax.lax.scan(body, (obs, st, rec0, jnp.zeros((), bool)),
                                              jax.random.split(k_run, max_steps)[:n_steps])
             return rec
