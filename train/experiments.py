@@ -5,6 +5,7 @@ python -m train.experiments                      # full study: the authors' budg
 python -m train.experiments --quick              # small budgets (table QUICK below), runs/experiments_quick/
 python -m train.experiments --only merge --only racetrack/cs-maddpg --seeds 4
 python -m train.experiments --report-only        # redraw figures and RESULTS.md from the finished runs
+python -m train.experiments --study agents       # the K-agent study (train/agents_study.py): AGENTS.md
 ```
 
 Study folder (``--out``)::
@@ -165,7 +166,7 @@ def run_one(item: dict, study_dir: str, overwrite: bool = False, gifs: bool = Tr
     import train.run
 
     scenario, algo = item["scenario"], item["algo"]
-    name = f"{scenario}_{algo}"
+    name = item.get("name") or f"{scenario}_{algo}"
     config, reason = _resolve(item)
     if config is None:
         _say(f"{name}: skipped ({reason})", verbose)
@@ -226,29 +227,43 @@ def _say(msg: str, verbose: bool) -> None:
 
 def run_study(out: str, only=None, quick: bool = False, seeds: int | None = None, steps: int | None = None,
               overrides: dict | None = None, budgets: dict | None = None, overwrite: bool = False,
-              gifs: bool = True, report_only: bool = False, verbose: bool = True) -> dict:
-    """Run (or resume) the selected runs, then draw the figures and write RESULTS.md. Returns study.json's dict."""
-    from train import figures, report
+              gifs: bool = True, report_only: bool = False, verbose: bool = True, study_name: str = "paper",
+              agents=None) -> dict:
+    """Run (or resume) the selected runs, then draw the figures and write RESULTS.md (``study_name="agents"``:
+    the K-agent study of :mod:`train.agents_study` for the K in ``agents``, and AGENTS.md). Returns study.json's
+    dict."""
+    from train import agents_study, figures, report
 
-    items = plan(only, quick, seeds, steps, overrides, budgets)
+    if study_name == "agents":
+        items = agents_study.plan(agents=agents or agents_study.AGENTS, seeds=seeds, steps=steps)
+        for item in items:
+            item["extra"] = dict(overrides or {})
+    else:
+        items = plan(only, quick, seeds, steps, overrides, budgets)
     study_dir = os.path.abspath(out)
     os.makedirs(os.path.join(study_dir, "runs"), exist_ok=True)
     path = os.path.join(study_dir, "study.json")
     study = _read_json(path) or {"runs": {}}
     custom = budgets is not None or seeds is not None or steps is not None or bool(overrides)
     study.update(quick=quick, budgets="custom" if custom else ("quick" if quick else "default"),
-                 only=[f"{i['scenario']}/{i['algo']}" for i in items])
+                 only=[item.get("name") or f"{item['scenario']}/{item['algo']}" for item in items])
     t0 = time.perf_counter()
     if not report_only:
         for item in items:
-            key = f"{item['scenario']}_{item['algo']}"
-            status = run_one(item, study_dir, overwrite, gifs, verbose)
+            key = item.get("name") or f"{item['scenario']}_{item['algo']}"
+            status = run_one(item, study_dir, overwrite, gifs and study_name != "agents", verbose)
             status["wall_s"] = _carried_wall(study["runs"].get(key, {}), status["status"]) + \
                 status.pop("train_wall_s", 0.0)
             status.pop("config", None)
             study["runs"][key] = status
             _write_json(path, study)
             _release_compiled_programs()
+    if study_name == "agents":
+        report_path = agents_study.write_report(study_dir, study, items)
+        study["last_invocation_s"] = time.perf_counter() - t0
+        _write_json(path, study)
+        _say(f"wrote {report_path} ({study['last_invocation_s']:.0f} s)", verbose)
+        return study
     t1 = time.perf_counter()
     paths = figures.make_figures(study_dir)
     study["figures_s"] = time.perf_counter() - t1
@@ -301,6 +316,11 @@ def parse_args(argv=None):
     p = argparse.ArgumentParser(prog="python -m train.experiments", description=__doc__.split("\n\n")[0],
                                 formatter_class=argparse.RawDescriptionHelpFormatter, epilog=(
                                     "study: " + "; ".join(f"{s}: {', '.join(a)}" for s, a in STUDY.items())))
+    p.add_argument("--study", choices=("paper", "agents"), default="paper",
+                   help="paper: the paper's scenarios and algorithms (RESULTS.md); agents: the K-agent study on "
+                        "merge-v0, CSQ with three hierarchies against MAPPO-L and MACPO (AGENTS.md)")
+    p.add_argument("--agents", type=int, action="append", default=None, metavar="K",
+                   help="--study agents: the numbers of agents to run (repeatable; default 2, 3 and 4)")
     p.add_argument("--quick", action="store_true",
                    help="small budgets (the QUICK table in train/experiments.py): the whole study in minutes")
     p.add_argument("--only", action="append", default=[], metavar="SCENARIO[/ALGO]",
@@ -321,10 +341,24 @@ def parse_args(argv=None):
 
 def main(argv=None) -> int:
     args = parse_args(argv)
-    out = args.out or os.path.join("runs", "experiments_quick" if args.quick else "experiments")
+    default_out = {"agents": "agents_study"}.get(args.study, "experiments_quick" if args.quick else "experiments")
+    out = args.out or os.path.join("runs", default_out)
     try:
         overrides = parse_set(args.set)
-        items = plan(args.only, args.quick, args.seeds, args.steps, overrides)
+        if args.study == "agents":
+            from train import agents_study
+
+            if args.only or args.quick:
+                raise ValueError("--study agents runs its own table (train/agents_study.py): --only and --quick do "
+                                 "not apply; choose the K with --agents and the budget with --steps / --seeds")
+            items = agents_study.plan(agents=args.agents or agents_study.AGENTS, seeds=args.seeds,
+                                      steps=args.steps)
+            for item in items:
+                item["extra"] = overrides
+        elif args.agents:
+            raise ValueError("--agents applies to --study agents only")
+        else:
+            items = plan(args.only, args.quick, args.seeds, args.steps, overrides)
         known = set()
         for item in items:  # validate every registered run's configuration before anything is trained
             config, _ = _resolve(item)
@@ -341,7 +375,8 @@ def main(argv=None) -> int:
     train.xla_flags.use_all_cpu_cores()
     enable_compile_cache(os.path.join(out, "jax_cache"))
     run_study(out, args.only, args.quick, args.seeds, args.steps, overrides, overwrite=args.overwrite,
-              gifs=not args.no_gifs, report_only=args.report_only, verbose=not args.quiet)
+              gifs=not args.no_gifs, report_only=args.report_only, verbose=not args.quiet, study_name=args.study,
+              agents=args.agents)
     return 0
 
 

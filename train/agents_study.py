@@ -1,0 +1,247 @@
+"""The K-agent study: does the Stackelberg structure buy safety or return as the number of agents grows?
+
+```
+python -m train.experiments --study agents                   # merge-v0 with traffic, K = 2, 3, 4, 8 seeds each
+python -m train.experiments --study agents --agents 2 --agents 3   # a subset of K
+python -m train.experiments --study agents --report-only     # redraw the figure and AGENTS.md
+```
+
+Per scenario and K: CSQ with the vertical chain (``0|1|...``), the horizontal split (the first ``ceil(K/2)``
+agents lead, the others follow, e.g. ``0,1|2,3``; at K = 2 it is the chain and is not run twice) and no hierarchy
+(``0,1,...``, all agents on one level), and the flat MAPPO-L and MACPO, each with the scenario's shipped
+configuration (``train/configs/<scenario>_<algo>.json``) and 8 seeds. Study folder (``--out``, default
+``runs/agents_study``)::
+
+    runs/<scenario>_K<k>_<method>/   one run folder each (train.run)
+    figures/<scenario>_agents.png    the four measures against K, one line per method
+    study.json                       what was asked, what each run did, its wall-clock time
+    AGENTS.md                        the tables and the comparisons
+
+Every measure is first reduced to one value per seed: the mean over its greedy evaluation episodes (the main
+table; exploration off) or over its last 10% of training episodes; across seeds, the inter-quartile mean with a 95%
+stratified bootstrap interval (:mod:`jaxsmarl.stats`), as in :mod:`train.report`. Return and cost are per agent
+(the episode's sum over agents divided by K), so they compare across K; ``speed`` is the mean speed over the
+agent-steps driven (:func:`jaxsmarl.metrics.episode_record`).
+"""
+
+from __future__ import annotations
+
+import datetime
+import os
+
+import numpy as np
+
+from train.report import _fmt, compare, interval
+
+__all__ = ["SCENARIOS", "AGENTS", "METHODS", "SEEDS", "hierarchy", "plan", "collect", "measure", "render_report",
+           "plot", "write_report"]
+
+SCENARIOS = ("merge-v0",)
+AGENTS = (2, 3, 4)
+# (method name, algorithm, hierarchy shape): Stackelberg methods first, then their flat counterparts
+METHODS = (("csq-chain", "csq", "chain"), ("csq-horizontal", "csq", "horizontal"), ("csq-flat", "csq", "flat"),
+           ("mappo-l", "mappo-l", None), ("macpo", "macpo", None))
+SEEDS = 8
+# (key, column title, digits): the measures of the tables and the figure
+MEASURES = (("return", "return per agent", 2), ("crash", "crash rate", 3), ("cost", "cost per agent", 2),
+            ("speed", "speed (m/s)", 2))
+
+
+def hierarchy(shape: str | None, k: int) -> str | None:
+    """The ``--hierarchy`` of a method with ``k`` agents (None: the algorithm has no hierarchy)."""
+    agents = [str(i) for i in range(k)]
+    if shape is None:
+        return None
+    if shape == "chain":
+        return "|".join(agents)
+    if shape == "flat":
+        return ",".join(agents)
+    if shape == "horizontal":
+        lead = (k + 1) // 2
+        return ",".join(agents[:lead]) + "|" + ",".join(agents[lead:])
+    raise ValueError(f"unknown hierarchy shape {shape!r}; choose chain, horizontal or flat")
+
+
+def plan(scenarios=SCENARIOS, agents=AGENTS, seeds: int | None = None, steps: int | None = None) -> list[dict]:
+    """The runs of the study, in order (all methods at the smallest K first), as :mod:`train.experiments` items
+    with a ``name``; the horizontal split is left out where it equals the chain (K = 2)."""
+    for k in agents:
+        if not isinstance(k, int) or not 2 <= k <= 4:
+            raise ValueError(f"--agents for the K-agent study must be 2, 3 or 4 (CSQ's joint-action grid is 5^K), "
+                             f"got {k!r}")
+    out = []
+    for scenario in scenarios:
+        for k in sorted(set(agents)):
+            for method, algo, shape in METHODS:
+                h = hierarchy(shape, k)
+                if shape == "horizontal" and h == hierarchy("chain", k):
+                    continue
+                ov = {"agents": k, "num_seeds": SEEDS if seeds is None else seeds}
+                if h is not None:
+                    ov["hierarchy"] = h
+                if steps is not None:
+                    ov["total_steps"] = steps
+                out.append({"name": f"{scenario}_K{k}_{method}", "scenario": scenario, "algo": algo,
+                            "agents": k, "method": method, "overrides": ov, "extra": {}})
+    return out
+
+
+def collect(study_dir: str, items: list[dict] | None = None) -> dict[str, dict[int, dict[str, dict]]]:
+    """``{scenario: {K: {method: run}}}`` of the finished runs (summary.json says finished) of ``study_dir``."""
+    import json
+
+    items = plan() if items is None else items
+    out: dict = {}
+    for it in items:
+        path = os.path.join(study_dir, "runs", it["name"], "summary.json")
+        if not os.path.exists(path):
+            continue
+        with open(path) as f:
+            summary = json.load(f)
+        if not summary.get("finished"):
+            continue
+        out.setdefault(it["scenario"], {}).setdefault(it["agents"], {})[it["method"]] = summary
+    return out
+
+
+def measure(summary: dict, key: str, k: int, greedy: bool = True) -> list[float]:
+    """Per seed: measure ``key`` of a run's summary.json (greedy evaluation or last 10% of training episodes);
+    ``return`` and ``cost`` per agent, ``return_<i>`` one agent's return."""
+
+    def per_seed(field):
+        if greedy:
+            return np.asarray(summary["eval"]["summary"][field]["per_seed"], np.float64)
+        return np.asarray(summary["summary"][field]["last_per_seed"], np.float64)
+
+    if key in ("return", "cost"):
+        return list(sum(per_seed(f"{key}_{i}") for i in range(k)) / k)
+    return list(per_seed(key))
+
+
+def _table(runs: dict[int, dict[str, dict]], greedy: bool) -> list[str]:
+    head = "| K | method | " + " | ".join(t for _, t, _ in MEASURES) + " |"
+    lines = [head, "|" + "---|" * (2 + len(MEASURES))]
+    for k in sorted(runs):
+        for method, _, _ in METHODS:
+            s = runs[k].get(method)
+            if s is None:
+                continue
+            cells = [_fmt(interval(measure(s, key, k, greedy)), d) for key, _, d in MEASURES]
+            lines.append(f"| {k} | {method} | " + " | ".join(cells) + " |")
+    return lines
+
+
+def _agents_table(runs: dict[int, dict[str, dict]]) -> list[str]:
+    kmax = max(runs)
+    lines = ["| K | method | " + " | ".join(f"agent {i}" for i in range(kmax)) + " |",
+             "|" + "---|" * (2 + kmax)]
+    for k in sorted(runs):
+        for method, _, _ in METHODS:
+            s = runs[k].get(method)
+            if s is None:
+                continue
+            cells = [_fmt(interval(measure(s, f"return_{i}", k)), 2) if i < k else "" for i in range(kmax)]
+            lines.append(f"| {k} | {method} | " + " | ".join(cells) + " |")
+    return lines
+
+
+def comparisons(runs: dict[int, dict[str, dict]]) -> list[tuple[int, str, str, str, int]]:
+    """``(K, method, against, sentence, sign)`` for each Stackelberg method against each flat counterpart, on the
+    greedy crash rate and return per agent (sign +1: the method's value is higher, intervals apart)."""
+    out = []
+    for k in sorted(runs):
+        for method in ("csq-chain", "csq-horizontal"):
+            for other in ("csq-flat", "mappo-l", "macpo"):
+                a, b = runs[k].get(method), runs[k].get(other)
+                if a is None or b is None:
+                    continue
+                for key, what in (("crash", "crash rate"), ("return", "return per agent")):
+                    text, sign = compare(method, interval(measure(a, key, k)), other, interval(measure(b, key, k)),
+                                         f"{what} at K = {k}")
+                    out.append((k, method, other, text, sign))
+    return out
+
+
+def render_report(study_dir: str, study: dict | None = None, items: list[dict] | None = None,
+                  figures: dict[str, str] | None = None) -> str:
+    """AGENTS.md's text for the finished runs of ``study_dir``."""
+    all_runs = collect(study_dir, items)
+    if study and study.get("command"):
+        origin = f"Generated by `{study['command']}`."
+    else:
+        now = datetime.datetime.now().strftime("%Y-%m-%d %H:%M")
+        origin = f"Generated by `python -m train.experiments --study agents` on {now}."
+    lines = ["# The K-agent study: hierarchies against flat learners as K grows", "", origin,
+             "Per run: IQM across seeds with 95% stratified bootstrap intervals; per seed the mean over its greedy "
+             "evaluation episodes (tables 1 and 2) or its last 10% of training episodes (table 3). Return and cost "
+             "per agent: the episode's sum over agents divided by K. Methods: CSQ with the vertical chain "
+             "(`0|1|..`), the horizontal split (first ceil(K/2) agents lead) and no hierarchy (one level), "
+             "MAPPO-L, MACPO.", ""]
+    if not all_runs:
+        return "\n".join(lines + ["No run has finished yet.", ""])
+    for scenario, runs in all_runs.items():
+        budgets = sorted({(s["config"]["algo"], s["config"]["num_seeds"], s["config"]["total_steps"])
+                          for r in runs.values() for s in r.values()})
+        lines += [f"## {scenario}", "", "Budgets (algorithm: seeds x env steps per seed): "
+                  + "; ".join(f"{a}: {n} x {t:,}" for a, n, t in budgets) + ".", ""]
+        fig = (figures or {}).get(scenario)
+        if fig:
+            lines += [f"![{scenario}: measures against K]({os.path.relpath(fig, study_dir)})", ""]
+        lines += ["Greedy evaluation:", ""] + _table(runs, True) + [""]
+        lines += ["Return of each agent (greedy evaluation):", ""] + _agents_table(runs) + [""]
+        lines += ["Last 10% of training episodes (exploration on):", ""] + _table(runs, False) + [""]
+        lines += ["Stackelberg against flat (greedy evaluation; a difference is claimed only where the 95% "
+                  "intervals do not overlap):", ""]
+        lines += [f"- {text}" for _, _, _, text, _ in comparisons(runs)] + [""]
+    return "\n".join(lines)
+
+
+def plot(runs: dict[int, dict[str, dict]], out_base: str, title: str = "",
+         formats: tuple[str, ...] = ("png",)) -> list[str]:
+    """The four measures (greedy evaluation) against K, one line per method with its 95% interval as error bars."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, len(MEASURES), figsize=(4.0 * len(MEASURES), 3.4), squeeze=False)
+    ks = sorted(runs)
+    for j, (method, _, _) in enumerate(METHODS):
+        have = [k for k in ks if method in runs[k]]
+        if not have:
+            continue
+        for ax, (key, name, _) in zip(axes[0], MEASURES):
+            cis = np.asarray([interval(measure(runs[k][method], key, k)) for k in have])
+            x = np.asarray(have, float) + 0.06 * (j - (len(METHODS) - 1) / 2)
+            ax.errorbar(x, cis[:, 0], yerr=[cis[:, 0] - cis[:, 1], cis[:, 2] - cis[:, 0]], marker="o", capsize=3,
+                        label=method)
+            ax.set_title(name)
+            ax.set_xticks(ks)
+            ax.set_xlabel("controlled agents K")
+    axes[0][0].legend(fontsize=8)
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    paths = []
+    for fmt in formats:
+        path = f"{out_base}.{fmt}"
+        os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+        fig.savefig(path, dpi=110)
+        paths.append(path)
+    plt.close(fig)
+    return paths
+
+
+def write_report(study_dir: str, study: dict | None = None, items: list[dict] | None = None) -> str:
+    """Draw the figures and write ``study_dir/AGENTS.md``; returns its path."""
+    figs = {}
+    for scenario, runs in collect(study_dir, items).items():
+        paths = plot(runs, os.path.join(study_dir, "figures", f"{scenario}_agents"),
+                     title=f"{scenario}: greedy evaluation, IQM and 95% interval across seeds")
+        figs[scenario] = paths[0]
+    text = render_report(study_dir, study, items, figs)
+    out = os.path.join(study_dir, "AGENTS.md")
+    with open(out + ".tmp", "w") as f:
+        f.write(text)
+    os.replace(out + ".tmp", out)
+    return out
