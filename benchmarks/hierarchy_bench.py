@@ -1,6 +1,6 @@
 """Benchmark: hierarchies of K agents. (1) The batched equilibrium solver against a per-sample Python loop for
-vertical chains of K = 2..5 agents (5^K joint actions); (2) CSQ training speed on highway-v0 with K = 2, 3, 4
-controlled vehicles (critics over 5^K joint actions).
+vertical chains of K = 2..5 agents (5^K joint actions); (2) CSQ and MAPPO-L training speed on highway-v0 with
+K = 2, 3, 4 controlled vehicles (CSQ's critics over 5^K joint actions).
 
 (1) Both sides get the value tensors precomputed (no network). The loop is backward induction by exhaustive
 recursion over every prefix of actions, per sample, on nested Python lists (the fastest way to index them in
@@ -11,6 +11,8 @@ side; medians are reported.
 (2) One seed, one environment, the chain hierarchy, everything else CSQ's defaults (batch 64, one update per step
 after the warm-up), compiled ahead of time (reported apart), then the training chunks timed as in
 ``python -m train``. Steps are environment steps; after the warm-up every step also makes one gradient update.
+MAPPO-L: one seed, the shipped highway configuration (64 envs x 32 steps, then its epochs of minibatch updates),
+one update per chunk, the chunks after the first timed.
 
 Run: python benchmarks/hierarchy_bench.py  (writes benchmarks/results/hierarchy.json)
      python benchmarks/hierarchy_bench.py --train-steps 600 --solver-only
@@ -105,13 +107,18 @@ def bench_solver(k, batch, repeats, inner):
             "ratio": loop_s / jax_s, "repeats": repeats, "jax_calls_per_repeat": inner}
 
 
-def bench_train(k, steps, warmup, chunk_steps):
+def bench_train(k, steps, warmup, chunk_steps, algo="csq"):
     from train.build import make_train
     from train.config import load_config
     from train.trainer import seed_keys
 
-    cfg = load_config("highway", "csq", dict(agents=k, num_seeds=1, num_envs=1, total_steps=steps, warmup=warmup,
-                                             chunk_steps=chunk_steps, checkpoint_every=0, eval_episodes=0))
+    if algo == "csq":
+        values = dict(num_envs=1, total_steps=steps, warmup=warmup, chunk_steps=chunk_steps)
+    else:  # on-policy: the shipped highway configuration (64 envs x 32 steps per update), one update per chunk
+        cycle = 64 * 32
+        values = dict(total_steps=steps * cycle, chunk_steps=cycle)
+        chunk_steps = cycle
+    cfg = load_config("highway", algo, dict(agents=k, num_seeds=1, checkpoint_every=0, eval_episodes=0, **values))
     trainer = make_train(cfg)
     key = seed_keys(cfg)[0]
     t0 = time.perf_counter()
@@ -130,10 +137,12 @@ def bench_train(k, steps, warmup, chunk_steps):
         jax.block_until_ready(m)
         timed += chunk_steps
     train_s = time.perf_counter() - t1
-    return {"agents": k, "joint_actions": A ** k, "hierarchy": "chain", "vehicles": int(trainer.env.num_slots),
+    return {"algo": algo, "agents": k, "joint_actions": A ** k,
+            "hierarchy": "chain" if algo == "csq" else "flat", "vehicles": int(trainer.env.num_slots),
             "compile_s": round(compile_s, 2), "timed_steps": timed, "train_s": round(train_s, 2),
             "env_steps_per_s": round(timed / train_s, 1), "cpu_s": round(time.process_time() - c1, 1),
-            "warmup_steps": warmup, "batch_size": cfg["batch_size"],
+            "warmup_steps": warmup if algo == "csq" else None,
+            "batch_size": cfg["batch_size"] if algo == "csq" else cfg["num_envs"] * cfg["rollout_length"],
             "load_avg_1m": [round(load0, 2), round(os.getloadavg()[0], 2)]}
 
 
@@ -144,6 +153,8 @@ def main(argv=None):
     p.add_argument("--train-agents", type=int, nargs="+", default=[2, 3, 4], help="K for CSQ training")
     p.add_argument("--train-steps", type=int, default=900, help="steps per training run (the first chunk untimed)")
     p.add_argument("--chunk-steps", type=int, default=300)
+    p.add_argument("--ppo-updates", type=int, default=4,
+                   help="MAPPO-L updates per training run (64 envs x 32 steps each; the first untimed)")
     p.add_argument("--solver-only", action="store_true")
     p.add_argument("--out", default=OUT)
     args = p.parse_args(argv)
@@ -161,8 +172,13 @@ def main(argv=None):
             print(f"CSQ highway K={k} ({r['joint_actions']} joint actions, {r['vehicles']} vehicles): "
                   f"{r['env_steps_per_s']} env steps/s (compile {r['compile_s']} s, load {r['load_avg_1m']})",
                   flush=True)
-    meta = {"benchmark": "hierarchy: batched solver vs per-sample loop (chains, K agents); CSQ training on "
-                         "highway-v0 with K controlled vehicles",
+        for k in args.train_agents:
+            train.append(bench_train(k, args.ppo_updates, 0, 0, algo="mappo-l"))
+            r = train[-1]
+            print(f"MAPPO-L highway K={k} ({r['vehicles']} vehicles, 64 envs): {r['env_steps_per_s']} env steps/s "
+                  f"(compile {r['compile_s']} s, load {r['load_avg_1m']})", flush=True)
+    meta = {"benchmark": "hierarchy: batched solver vs per-sample loop (chains, K agents); CSQ and MAPPO-L "
+                         "training on highway-v0 with K controlled vehicles",
             "command": "python benchmarks/hierarchy_bench.py " + " ".join(argv if argv is not None else sys.argv[1:]),
             "jax": jax.__version__, "device": str(jax.devices()[0]), "backend": jax.default_backend(),
             "python": platform.python_version(), "cpu_count": os.cpu_count(),
