@@ -220,7 +220,7 @@ def test_soft_update_period_and_multiplier_in_update():
     assert int(prev.n_updates) == 4
 
 
-@pytest.mark.slow  # tests/test_maddpg_hierarchy.py checks the sequential order level by level by default
+@pytest.mark.slow  # tests/test_maddpg_hierarchy.py checks the sequential order agent by agent by default
 def test_sequential_actor_order_steps_the_follower_against_the_stepped_leader(x64):
     """actor_order="sequential" (authors' leader.train() then follower.train()): the leader's step and every critic
     step are those of the simultaneous update; the follower's actor takes one Adam step on its p25 loss with

@@ -1,7 +1,7 @@
 """The MADDPG family for K agents and any hierarchy (the paper's multi-agent expansion, docs/algorithms.md): actor
 gradients through every lower level against finite differences of explicitly written hierarchical decisions
 (a three-level chain in two agent orders, two leaders over two followers), the flat hierarchy against MADDPG's
-independent update, the sequential actor order level by level, configuration errors, and a short K = 3 training run
+independent update, the sequential actor order agent after agent, configuration errors, and a short K = 3 training run
 on racetrack-v0."""
 
 import jax
@@ -151,10 +151,12 @@ def test_two_agent_chain_is_the_default_leader_follower(x64):
         np.testing.assert_array_equal(x, y)
 
 
-def test_sequential_actor_order_steps_level_after_level(x64):
-    """``actor_order='sequential'`` on the chain 0|1|2: agent 1's actor loss is taken with agent 0's stepped actor
-    and agent 2's unstepped one; agent 2's with both stepped actors above it."""
-    agent, st, obs = _setup(3, hierarchy="0|1|2", actor_order="sequential")
+@pytest.mark.parametrize("hierarchy,stackelberg", [("0|1|2", True), ("0,1,2", False)])
+def test_sequential_actor_order_steps_agent_after_agent(x64, hierarchy, stackelberg):
+    """``actor_order='sequential'`` on the chain 0|1|2 and on one level (C-MADDPG's flat agents): agent 1's actor
+    loss is taken with agent 0's stepped actor and agent 2's unstepped one; agent 2's with both stepped actors
+    before it."""
+    agent, st, obs = _setup(3, hierarchy=hierarchy, stackelberg=stackelberg, actor_order="sequential")
     batch = _random_batch(obs, 8)
     new, info = agent.update(st, batch, jax.random.PRNGKey(0))
     lam = st.lam

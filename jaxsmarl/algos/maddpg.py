@@ -39,7 +39,8 @@ Two agents, deterministic actors bounded by ``max_action * tanh``:
 Differences to the authors' code, as options: ``lambda_rule="authors"`` (non-decreasing lambda and hinge
 penalty), ``critic_input="own"``, ``bootstrap_on_truncation=False``, ``actor_order="sequential"`` (their
 ``leader.train()`` runs before ``follower.train()``, so the follower's actor loss and multiplier see the leader
-actor after its step; with K agents level after level; by default all actors step from the same parameters, as
+actor after its step; with K agents one agent after another in decision order, the agents of one level too, so the
+flat C-MADDPG's agent 1 sees agent 0's stepped actor; by default all actors step from the same parameters, as
 Algorithm 2 reads),
 ``terminal_mask="batch_mean"`` (their targets bootstrap every transition with the discount scaled by the
 batch's done fraction, :mod:`jaxsmarl.bootstrap`).
@@ -278,30 +279,26 @@ class MADDPGAgent:
         upd, actor_opt = self.actor_opt.update(g_act, state.actor_opt, state.actors)
         actors = optax.apply_updates(state.actors, upd)
         if c.actor_order == "sequential":
-            # the authors' leader.train() before follower.train(), level by level: the actor losses (and
-            # multipliers) of a level at the actions of the STEPPED actors of the levels above it, the levels below
-            # not yet stepped. Adam is elementwise, so the steps of the levels above stand.
+            # the authors' train() of one agent after another (leader before follower), in decision order: an
+            # agent's actor loss (and multiplier) at the actions of the STEPPED actors of the agents before it, those
+            # after it not yet stepped; the agents of one level too (C-MADDPG's agent 1 after agent 0). Adam is
+            # elementwise, so the earlier agents' steps stand.
+            order = agent_order(self.levels)
             grads_now = list(g_act)
-            for depth in range(1, len(self.levels)):
-                level, above = self.levels[depth], {a for lv in self.levels[:depth] for a in lv}
+            for pos in range(1, self.n):
+                who, before = order[pos], set(order[:pos])
 
-                def level_loss(thetas, level=level, above=above, stepped=actors):
-                    mixed = tuple(stepped[a] if a in above else thetas[level.index(a)] if a in level
-                                  else state.actors[a] for a in range(self.n))
+                def agent_loss(theta, who=who, before=before, stepped=actors):
+                    mixed = tuple(stepped[a] if a in before else theta if a == who else state.actors[a]
+                                  for a in range(self.n))
                     loss, v_new = self.actor_losses(mixed, state.critics, state.lam, batch.obs)
-                    total = loss[level[0]]
-                    for a in level[1:]:
-                        total = total + loss[a]
-                    return total, (loss, v_new)
+                    return loss[who], (loss, v_new)
 
-                g_level, (loss_new, v_new) = jax.grad(level_loss, has_aux=True)(tuple(state.actors[a] for a in level))
-                for a, g in zip(level, g_level):
-                    grads_now[a] = g
+                grads_now[who], (loss_new, v_new) = jax.grad(agent_loss, has_aux=True)(state.actors[who])
                 upd, actor_opt = self.actor_opt.update(tuple(grads_now), state.actor_opt, state.actors)
                 actors = optax.apply_updates(state.actors, upd)
-                for a in level:
-                    v = v.at[:, a].set(v_new[:, a])
-                    actor_loss = actor_loss.at[a].set(loss_new[a])
+                v = v.at[:, who].set(v_new[:, who])
+                actor_loss = actor_loss.at[who].set(loss_new[who])
         lam = self.lagrangian.update(state.lam, v[..., G]) if c.constrained else state.lam
 
         n = state.n_updates  # the authors soft-update when train_step > 0 and train_step % update_rate == 0
