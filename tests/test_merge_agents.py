@@ -271,3 +271,27 @@ def test_training_builds_merge_k():
         assert isinstance(env, envs_jax.DrivingEnv) and isinstance(wrapped, envs_jax.AutoResetWrapper)
     with pytest.raises(ValueError, match="2..8"):
         validate({"scenario": "merge", "algo": "csq", "agents": 9})
+
+
+@pytest.mark.slow
+def test_cli_trains_merge_with_three_agents(tmp_path, capsys):
+    """``python -m train --scenario merge --agents 3``: a short CSQ run writes per-episode rows whose arrivals come
+    from merge-k's latched flags, and its evaluation."""
+    import csv
+    import json
+    import os
+
+    from train import __main__ as cli
+
+    out = str(tmp_path / "run")
+    assert cli.main(["--scenario", "merge", "--agents", "3", "--algo", "csq", "--steps", "400", "--seeds", "1",
+                     "--chunk-steps", "200", "--set", "warmup=64", "--set", "batch_size=16", "--eval-episodes", "2",
+                     "--out", out]) == 0
+    assert "merge/csq" in capsys.readouterr().out
+    with open(os.path.join(out, "episodes.csv")) as f:
+        rows = list(csv.DictReader(f))
+    assert rows and all(1 <= int(r["length"]) <= STEPS for r in rows)
+    # the arrival flags reach the training records (an agent that neither crashes nor stops crosses x = 350)
+    assert any(r["leader_arrived"] == "1" or r["follower_arrived"] == "1" for r in rows)
+    summary = json.load(open(os.path.join(out, "summary.json")))
+    assert summary["finished"] and summary["config"]["agents"] == 3 and len(summary["config"]["cost_threshold"]) == 3
