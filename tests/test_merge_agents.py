@@ -174,9 +174,11 @@ def test_arrival_ranking_hand_made():
 def test_ranking_is_the_two_agent_rule_for_two():
     cases = itertools.product(itertools.product([False, True], repeat=2), itertools.product([False, True], repeat=2),
                               [0, 1, 2])
+    two, many = (jax.jit(functools.partial(f, first_reward=10.0, second_reward=5.0))
+                 for f in (one_shot_arrival, ranked_arrival))
     for arrived, here, first in cases:
-        a = one_shot_arrival(jnp.array(here), jnp.array(arrived), jnp.int32(first), 10.0, 5.0)
-        b = ranked_arrival(jnp.array(here), jnp.array(arrived), jnp.int32(first), 10.0, 5.0)
+        a = two(jnp.array(here), jnp.array(arrived), jnp.int32(first))
+        b = many(jnp.array(here), jnp.array(arrived), jnp.int32(first))
         for u, v in zip(a, b):
             np.testing.assert_array_equal(u, v)
 
