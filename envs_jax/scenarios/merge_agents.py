@@ -19,7 +19,9 @@ Per agent k: reward ``speed_reward`` while its target-speed index is >= 1, plus
 x > ``finish_x``; cost ``collision_cost * crashed``; terminated when crashed or past
 ``finish_x``. Arrival ranking (:func:`envs_jax.scenarios.arrival.ranked_arrival`): the first
 agent to arrive gets ``first_arrival_reward``, every later one ``second_arrival_reward``;
-agents arriving on the same step are ranked in agent order.
+agents arriving on the same step are ranked in agent order. ``info``: ``arrived [K]`` (latched),
+``first_arrived`` (0 nobody yet, k + 1 when agent k was first), ``crash`` (any agent crashed) and the
+traffic core's keys.
 
 Observation ``[K, 4 n]`` (the authors' absolute, unnormalised ``x, y, vx, vy``), ``n =
 observed_vehicles`` (default K): row k is agent k's own features, then those of the n - 1
@@ -47,7 +49,7 @@ from envs_jax.traffic_env import Task, TrafficEnv, TrafficParams
 from envs_jax.traffic_state import TrafficState
 
 NAME = "merge-k"
-AGENT_SPACING = 20.0  # metres between successive pairs of agents (four car lengths at 25 m/s start speed)
+AGENT_SPACING = 20.0  # metres between successive agents on one lane, centre to centre (four car lengths)
 HIGHWAY_Y, RAMP_Y = 4.0, 14.5  # the two-agent starts: right highway lane, ramp
 START_X, START_SPEED = 70.0, 25.0
 MIN_AGENTS, MAX_AGENTS = 2, 8
