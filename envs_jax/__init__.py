@@ -14,6 +14,7 @@ from envs_jax.scenarios.intersection import Intersection
 from envs_jax.scenarios.intersection_continuous import make_intersection_continuous
 from envs_jax.scenarios.intersection_traffic import make_intersection
 from envs_jax.scenarios.merge import Merge
+from envs_jax.scenarios.merge_agents import make_merge_agents
 from envs_jax.scenarios.merge_cavs import make_merge_cavs
 from envs_jax.scenarios.merge_traffic import make_merge
 from envs_jax.scenarios.racetrack import Racetrack
@@ -29,6 +30,7 @@ register("racetrack", Racetrack)
 register_task("highway-v0", make_highway)
 register_task("highway-fast-v0", make_highway)
 register_task("merge-v0", make_merge)
+register_task("merge-k", make_merge_agents)
 register_task("merge-cavs-v0", make_merge_cavs)
 register_task("roundabout-v0", make_roundabout)
 register_task("racetrack-v0", make_racetrack)

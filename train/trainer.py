@@ -65,7 +65,8 @@ def make_env(scenario: str, agents: int | None = None, env_params: dict | None =
     controlled vehicles (default 2), ``merge-v0`` likewise highway-env's merge-v0 (with a time limit of
     ``MERGE_V0_DURATION`` seconds), ``merge-cavs`` MARL_CAVs' merge with at most ``agents`` CAVs (3: easy traffic,
     the default; 4: medium), ``racetrack-v0`` highway-env's racetrack with ``agents`` controlled vehicles (default
-    3), their observations flattened per agent (:mod:`envs_jax.traffic_autoreset`).
+    3), their observations flattened per agent (:mod:`envs_jax.traffic_autoreset`); ``merge`` with ``agents`` >= 3
+    the authors' merge with K agents (``merge-k``, same wrapper).
     ``env_params``: values replacing fields of the default params (a configuration's ``env``,
     :mod:`train.env_params`)."""
     import envs_jax
@@ -86,6 +87,11 @@ def make_env(scenario: str, agents: int | None = None, env_params: dict | None =
             if density is None:
                 raise ValueError(f"merge-cavs takes 3 agents (easy traffic) or 4 (medium), got {agents}")
             env = envs_jax.make("merge-cavs-v0", traffic_density=density)
+        wrapped = TrafficAutoResetWrapper(env)
+    elif scenario == "merge" and agents is not None and int(agents) > 2:
+        from envs_jax.traffic_autoreset import TrafficAutoResetWrapper
+
+        env = envs_jax.make("merge-k", controlled_vehicles=int(agents))
         wrapped = TrafficAutoResetWrapper(env)
     else:
         env = envs_jax.make(scenario)

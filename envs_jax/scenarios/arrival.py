@@ -22,3 +22,22 @@ def one_shot_arrival(here, arrived, first_arrived, first_reward, second_reward):
     bonus_f = jnp.where(new_f, jnp.where(arrived_l, second_reward, first_reward), 0.0)
     first = jnp.where(new_f & ~arrived_l, 2, first)
     return jnp.stack([bonus_l, bonus_f]), jnp.stack([arrived_l, arrived[1] | here[1]]), first.astype(jnp.int32)
+
+
+def ranked_arrival(here, arrived, first_arrived, first_reward, second_reward):
+    """:func:`one_shot_arrival` for K agents: the first agent to arrive gets ``first_reward``, every later one
+    ``second_reward``; agents arriving on the same step are ranked in agent order.
+
+    Agent k, arriving now, gets ``first_reward`` when no other agent arrived at an earlier step and no agent
+    before it arrives on this one. ``first_arrived``: 0 nobody yet, ``k + 1`` when agent k was first. With two
+    agents this is :func:`one_shot_arrival`. Returns ``(bonus[K], arrived[K], first_arrived)``.
+    """
+    here = jnp.asarray(here, bool)
+    arrived = jnp.asarray(arrived, bool)
+    new = here & ~arrived
+    earlier = jnp.sum(arrived.astype(jnp.int32)) - arrived.astype(jnp.int32) > 0  # another agent, earlier step
+    now_before = jnp.cumsum(here.astype(jnp.int32)) - here.astype(jnp.int32) > 0  # an agent before k, this step
+    first = new & ~earlier & ~now_before
+    bonus = jnp.where(new, jnp.where(first, first_reward, second_reward), 0.0)
+    who = jnp.where(jnp.any(first), jnp.argmax(first) + 1, first_arrived)
+    return bonus, arrived | here, who.astype(jnp.int32)
