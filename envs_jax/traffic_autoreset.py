@@ -7,9 +7,9 @@ one row, ``obs [K, vehicles_count * F]``, the shape the joint-action critics tak
 
 ``info["terminal_obs"]`` keeps the last observation of a finished episode (for bootstrapping);
 ``info["returned_episode"]`` flags the step on which an episode ended, with ``episode_return[K]``,
-``episode_cost[K]``, ``episode_length``, ``episode_crash`` (any agent crashed), ``episode_arrived[K]`` (always
-False: a traffic task has no destination), ``episode_offroad`` (any agent left the road) and
-``episode_distance[K]`` (each agent's path length, the sum of its per-decision displacements).
+``episode_cost[K]``, ``episode_length``, ``episode_crash`` (any agent crashed), ``episode_arrived[K]`` (the
+task's ``info["arrived"]`` on the episode's last step where it reports one, else False), ``episode_offroad`` (any
+agent left the road) and ``episode_distance[K]`` (each agent's path length, the sum of its per-decision displacements).
 """
 
 from __future__ import annotations
@@ -71,7 +71,7 @@ class TrafficAutoResetWrapper:
         info = dict(info)
         info.update(terminal_obs=obs, returned_episode=done, episode_return=ret, episode_cost=cst,
                     episode_length=length, episode_crash=crash,
-                    episode_arrived=jnp.zeros(self.env.num_agents, bool), episode_offroad=offroad,
+                    episode_arrived=info.get("arrived", jnp.zeros(self.env.num_agents, bool)), episode_offroad=offroad,
                     episode_distance=dist)
         keep = lambda x: jnp.where(done, jnp.zeros_like(x), x)
         new_state = TrafficAutoResetState(new_st, keep(ret), keep(cst), keep(length), keep(crash), keep(offroad),

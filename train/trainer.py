@@ -65,13 +65,19 @@ def make_env(scenario: str, agents: int | None = None, env_params: dict | None =
     controlled vehicles (default 2), ``merge-v0`` likewise highway-env's merge-v0 (with a time limit of
     ``MERGE_V0_DURATION`` seconds), ``merge-cavs`` MARL_CAVs' merge with at most ``agents`` CAVs (3: easy traffic,
     the default; 4: medium), ``racetrack-v0`` highway-env's racetrack with ``agents`` controlled vehicles (default
-    3), their observations flattened per agent (:mod:`envs_jax.traffic_autoreset`).
+    3), their observations flattened per agent (:mod:`envs_jax.traffic_autoreset`); ``roundabout`` with
+    ``agents`` >= 3 the authors' roundabout with K agents (``roundabout-k``, same wrapper).
     ``env_params``: values replacing fields of the default params (a configuration's ``env``,
     :mod:`train.env_params`)."""
     import envs_jax
     from train.env_params import with_values
 
-    if scenario in TRAFFIC_SCENARIOS:
+    if scenario == "roundabout" and agents is not None and int(agents) >= 3:
+        from envs_jax.traffic_autoreset import TrafficAutoResetWrapper
+
+        env = envs_jax.make("roundabout-k", controlled_vehicles=int(agents))
+        wrapped = TrafficAutoResetWrapper(env)
+    elif scenario in TRAFFIC_SCENARIOS:
         from envs_jax.traffic_autoreset import TrafficAutoResetWrapper
 
         if scenario == "highway":
