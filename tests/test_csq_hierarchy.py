@@ -181,7 +181,7 @@ def test_highway_k_agents_trains_through_the_loop():
 
 
 @pytest.mark.parametrize("scenario, overrides, message", [
-    ("merge", {"agents": 3}, "'agents' for scenario 'merge' must be 2.*--scenario highway"),
+    ("merge", {"agents": 3}, "'agents' for scenario 'merge' must be 2.*--scenario .*highway"),
     ("highway", {"agents": 5}, "at most 4 agents"),
     ("highway", {"agents": 9}, "must be 2..8"),
     ("highway", {"agents": 3, "hierarchy": "0|1"}, r"misses agent\(s\) \[2\].*'0\|1\|2' \(vertical chain\)"),

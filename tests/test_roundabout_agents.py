@@ -234,3 +234,36 @@ def test_random_rollout_under_jit_and_vmap(k, n):
     for a in (obs, reward, cost, x, speed):
         assert np.all(np.isfinite(a))
     assert np.all(np.abs(speed) < 40)  # highway-env's MAX_SPEED bounds every vehicle
+
+
+# ------------------------------------------------------------------------------------------ training wiring
+def test_training_builds_roundabout_k_for_three_agents_or_more():
+    from train.config import validate
+    from train.trainer import make_env
+
+    env, wrapped, _ = make_env("roundabout", 3)
+    assert env.name == "roundabout-k" and env.num_agents == 3 and wrapped.obs_shape == (3, 12)
+    for agents in (None, 2):
+        env, _, _ = make_env("roundabout", agents)
+        assert isinstance(env, envs_jax.DrivingEnv) and env.name == "roundabout"
+    assert validate({"scenario": "roundabout", "agents": 4})["agents"] == 4
+    with pytest.raises(ValueError, match="'agents' for scenario 'roundabout' must be 2..8"):
+        validate({"scenario": "roundabout", "agents": 9})
+
+
+@pytest.mark.slow
+def test_cli_trains_roundabout_with_three_agents(tmp_path, capsys):
+    import json
+    import os
+
+    from train import __main__ as cli
+
+    out = str(tmp_path / "run")
+    assert cli.main(["--scenario", "roundabout", "--agents", "3", "--steps", "400", "--seeds", "2", "--num-envs", "2",
+                     "--chunk-steps", "200", "--set", "warmup=64", "--set", "batch_size=16", "--eval-episodes", "2",
+                     "--out", out]) == 0
+    printed = capsys.readouterr().out
+    assert "python -m train.render" not in printed  # no renderer for the traffic core
+    summary = json.load(open(os.path.join(out, "summary.json")))
+    assert summary["finished"] and summary["config"]["agents"] == 3
+    assert summary["timing"]["env_steps_run"] == 400
