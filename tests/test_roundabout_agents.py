@@ -267,3 +267,19 @@ def test_cli_trains_roundabout_with_three_agents(tmp_path, capsys):
     summary = json.load(open(os.path.join(out, "summary.json")))
     assert summary["finished"] and summary["config"]["agents"] == 3
     assert summary["timing"]["env_steps_run"] == 400
+
+
+@pytest.mark.slow
+def test_pettingzoo_checkers_pass():
+    """PettingZoo's own API and seed checkers on the K-agent roundabout with traffic."""
+    import warnings
+
+    from pettingzoo.test import parallel_api_test, parallel_seed_test
+
+    from envs_jax.views import PettingZooDrivingEnv
+
+    env = envs_jax.make("roundabout-k", controlled_vehicles=3, other_vehicles=2)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        parallel_api_test(PettingZooDrivingEnv(env), num_cycles=40)
+        parallel_seed_test(lambda: PettingZooDrivingEnv(env))
