@@ -20,6 +20,7 @@ from envs_jax.scenarios.merge_traffic import make_merge
 from envs_jax.scenarios.racetrack import Racetrack
 from envs_jax.scenarios.racetrack_traffic import make_racetrack
 from envs_jax.scenarios.roundabout import Roundabout
+from envs_jax.scenarios.roundabout_agents import make_roundabout_agents
 from envs_jax.scenarios.roundabout_traffic import make_roundabout
 from envs_jax.wrappers import AutoResetWrapper, rollout
 
@@ -33,6 +34,7 @@ register_task("merge-v0", make_merge)
 register_task("merge-k", make_merge_agents)
 register_task("merge-cavs-v0", make_merge_cavs)
 register_task("roundabout-v0", make_roundabout)
+register_task("roundabout-k", make_roundabout_agents)
 register_task("racetrack-v0", make_racetrack)
 register_task("intersection-v0", make_intersection)
 register_task("intersection-multi-agent-v0", make_intersection)

@@ -8,11 +8,11 @@ one row, ``obs [K, vehicles_count * F]``, the shape the joint-action critics tak
 ``info["terminal_obs"]`` keeps the last observation of a finished episode (for bootstrapping);
 ``info["returned_episode"]`` flags the step on which an episode ended, with ``episode_return[K]``,
 ``episode_cost[K]``, ``episode_length``, ``episode_crash`` (any agent crashed), ``episode_arrived[K]`` (the
-env's ``info["arrived"]`` where it is latched for the episode, ``env.latched_arrival``; else False),
-``episode_offroad`` (any agent left the road) and ``episode_distance[K]`` (each agent's path length, the sum of
-its per-decision displacements), and for the average speed ``episode_speed_sum[K]`` (each agent's speed after
-every step it drove: present at the step's start and not terminated at an earlier step) with
-``episode_active_steps[K]`` (the number of those steps).
+task's ``info["arrived"]`` on the episode's last step where it reports one, else False), ``episode_offroad`` (any
+agent left the road) and ``episode_distance[K]`` (each agent's path length, the sum of its per-decision
+displacements), and for the average speed ``episode_speed_sum[K]`` (each agent's speed after every step it drove:
+present at the step's start and not terminated at an earlier step) with ``episode_active_steps[K]`` (the number of
+those steps).
 """
 
 from __future__ import annotations
@@ -80,13 +80,12 @@ class TrafficAutoResetWrapper:
         obs_reset, st_reset = self.reset(key_reset, params)
         new_st = jax.tree_util.tree_map(lambda a, b: jnp.where(done, a, b), st_reset.env_state, st)
         new_obs = jnp.where(done, obs_reset, obs)
-        zeros = jnp.zeros(self.env.num_agents, bool)
-        arrived = info["arrived"] if getattr(self.env, "latched_arrival", False) else zeros
         info = dict(info)
         info.update(terminal_obs=obs, returned_episode=done, episode_return=ret, episode_cost=cst,
                     episode_length=length, episode_crash=crash,
-                    episode_arrived=arrived, episode_offroad=offroad,
-                    episode_distance=dist, episode_speed_sum=speed_sum, episode_active_steps=active)
+                    episode_arrived=info.get("arrived", jnp.zeros(self.env.num_agents, bool)),
+                    episode_offroad=offroad, episode_distance=dist, episode_speed_sum=speed_sum,
+                    episode_active_steps=active)
         keep = lambda x: jnp.where(done, jnp.zeros_like(x), x)
         new_state = TrafficAutoResetState(new_st, keep(ret), keep(cst), keep(length), keep(crash), keep(offroad),
                                           keep(dist), keep(speed_sum), keep(active), keep(terminated))

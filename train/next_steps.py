@@ -54,8 +54,8 @@ def next_steps(out: str, config: dict) -> str:
             resume,
             (f"python -m train.experiments --only {config['scenario']}",
              "every algorithm on this scenario: runs, figures, RESULTS.md")]
-    # the K-agent traffic tasks (and the authors' scenarios with K > 2 agents) have no renderer and no study yet
-    if config["scenario"] in TRAFFIC_SCENARIOS or (config.get("agents") or 2) > 2:
+    # the traffic-core environments (K-agent tasks, the authors' scenarios with K > 2) have no renderer and no study yet
+    if config["scenario"] in TRAFFIC_SCENARIOS or int(config.get("agents") or 2) > 2:
         cmds = cmds[1:3]
     width = max(len(c) for c, _ in cmds)
     lines.append("next:")

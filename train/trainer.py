@@ -31,7 +31,6 @@ import jax.numpy as jnp
 
 from envs_jax.time_limit import episode_step_limit
 from jaxsmarl import metrics
-from train.config import TRAFFIC_SCENARIOS
 
 __all__ = ["Trainer", "make_env", "config_env", "make_evaluate", "make_train_fn", "seed_keys",
            "episode_step_limit", "with_matmul_precision", "chunk_layout", "assemble_trainer"]
@@ -58,6 +57,8 @@ class Trainer(NamedTuple):
 # highway-env's merge-v0 has no time limit; training and evaluation need one. Agents drive at 20 m/s or more and
 # leave the task at x = 370 m (at most 17 s from the farthest start), so the limit only cuts stalled episodes.
 MERGE_V0_DURATION = 30.0
+# The authors' scenarios with K >= 3 agents: their versions on the traffic core (K = 2 keeps the two-agent env).
+AUTHORS_K_TASKS = {"merge": "merge-k", "roundabout": "roundabout-k"}
 
 
 def make_env(scenario: str, agents: int | None = None, env_params: dict | None = None):
@@ -65,37 +66,32 @@ def make_env(scenario: str, agents: int | None = None, env_params: dict | None =
     controlled vehicles (default 2), ``merge-v0`` likewise highway-env's merge-v0 (with a time limit of
     ``MERGE_V0_DURATION`` seconds), ``merge-cavs`` MARL_CAVs' merge with at most ``agents`` CAVs (3: easy traffic,
     the default; 4: medium), ``racetrack-v0`` highway-env's racetrack with ``agents`` controlled vehicles (default
-    3), their observations flattened per agent (:mod:`envs_jax.traffic_autoreset`); ``merge`` with ``agents`` >= 3
-    the authors' merge with K agents (``merge-k``, same wrapper).
+    3), their observations flattened per agent (:mod:`envs_jax.traffic_autoreset`); ``merge`` and ``roundabout``
+    with ``agents`` >= 3 the authors' scenarios with K agents (``merge-k``, ``roundabout-k``, same wrapper).
     ``env_params``: values replacing fields of the default params (a configuration's ``env``,
     :mod:`train.env_params`)."""
     import envs_jax
+    from envs_jax.traffic_autoreset import TrafficAutoResetWrapper
     from train.env_params import with_values
 
-    if scenario in TRAFFIC_SCENARIOS:
-        from envs_jax.traffic_autoreset import TrafficAutoResetWrapper
-
-        if scenario == "highway":
-            env = envs_jax.make("highway-v0", controlled_vehicles=2 if agents is None else int(agents))
-        elif scenario == "merge-v0":
-            env = envs_jax.make("merge-v0", controlled_vehicles=2 if agents is None else int(agents),
-                                duration=MERGE_V0_DURATION)
-        elif scenario == "racetrack-v0":
-            env = envs_jax.make("racetrack-v0", controlled_vehicles=3 if agents is None else int(agents))
-        else:
-            density = {3: 1, 4: 2}.get(3 if agents is None else int(agents))
-            if density is None:
-                raise ValueError(f"merge-cavs takes 3 agents (easy traffic) or 4 (medium), got {agents}")
-            env = envs_jax.make("merge-cavs-v0", traffic_density=density)
-        wrapped = TrafficAutoResetWrapper(env)
-    elif scenario == "merge" and agents is not None and int(agents) > 2:
-        from envs_jax.traffic_autoreset import TrafficAutoResetWrapper
-
-        env = envs_jax.make("merge-k", controlled_vehicles=int(agents))
-        wrapped = TrafficAutoResetWrapper(env)
-    else:
+    k = None if agents is None else int(agents)
+    if scenario in AUTHORS_K_TASKS and k is not None and k > 2:
+        env = envs_jax.make(AUTHORS_K_TASKS[scenario], controlled_vehicles=k)
+    elif scenario == "highway":
+        env = envs_jax.make("highway-v0", controlled_vehicles=2 if k is None else k)
+    elif scenario == "merge-v0":
+        env = envs_jax.make("merge-v0", controlled_vehicles=2 if k is None else k, duration=MERGE_V0_DURATION)
+    elif scenario == "racetrack-v0":
+        env = envs_jax.make("racetrack-v0", controlled_vehicles=3 if k is None else k)
+    elif scenario == "merge-cavs":
+        density = {3: 1, 4: 2}.get(3 if k is None else k)
+        if density is None:
+            raise ValueError(f"merge-cavs takes 3 agents (easy traffic) or 4 (medium), got {agents}")
+        env = envs_jax.make("merge-cavs-v0", traffic_density=density)
+    else:  # the authors' two-agent scenarios
         env = envs_jax.make(scenario)
-        wrapped = envs_jax.AutoResetWrapper(env)
+        return env, envs_jax.AutoResetWrapper(env), with_values(scenario, env.default_params, env_params or {})
+    wrapped = TrafficAutoResetWrapper(env)
     return env, wrapped, with_values(scenario, env.default_params, env_params or {})
 
 

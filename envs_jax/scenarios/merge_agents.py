@@ -162,9 +162,6 @@ class MergeAgentsTask(Task):
 class MergeAgentsEnv(TrafficEnv):
     """:class:`TrafficEnv` with the authors' observation and the arrival flags kept in the state."""
 
-    # ``info["arrived"]`` is latched for the episode (read by envs_jax.traffic_autoreset)
-    latched_arrival = True
-
     def __init__(self, task: MergeAgentsTask, default_params: MergeAgentsParams):
         super().__init__(task, default_params)
         self.obs_shape = (self.num_agents, 4 * task.observed_vehicles)

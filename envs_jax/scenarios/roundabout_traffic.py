@@ -96,6 +96,34 @@ def shortest_path(graph: dict, start: str, goal: str) -> list:
     return []
 
 
+def route_table(road, destinations) -> tuple:
+    """``plan_route_to`` from every lane of ``road`` to every node of ``destinations``.
+
+    Returns ``(roads, ids, lens)``: ``[lanes, destinations, R]`` road indices and lane ids
+    (the first step keeps the lane's id, as ``plan_route_to``) and ``[lanes, destinations]``
+    lengths; a destination not reachable from a lane gives the lane's own road only.
+    """
+    graph = {}
+    for f, t in road.roads:
+        graph.setdefault(f, {})[t] = True
+    routes = []
+    for f, t, _ in road.lane_names:
+        row = []
+        for dest in destinations:
+            path = shortest_path(graph, t, dest)
+            row.append([f] + path if path else [f, t])
+        routes.append(row)
+    length = max(len(nodes) - 1 for row in routes for nodes in row)
+    shape = (len(routes), len(destinations))
+    roads = np.zeros(shape + (length,), np.int32)
+    ids = np.zeros(shape + (length,), np.int32)
+    lens = np.zeros(shape, np.int32)
+    for g, row in enumerate(routes):
+        for d, nodes in enumerate(row):
+            roads[g, d], ids[g, d], lens[g, d] = road.route(nodes, first_lane_id=int(road.lane_id[g]), length=length)
+    return roads, ids, lens
+
+
 class RoundaboutTask(Task):
     """roundabout-v0 with ``controlled_vehicles`` agents in ``num_slots`` slots."""
 
@@ -122,25 +150,8 @@ class RoundaboutTask(Task):
 
     def _build_routes(self):
         """``plan_route_to`` from every lane to every destination: ``[lanes, destinations, R]`` tables."""
-        graph = {}
-        for f, t in self.road.roads:
-            graph.setdefault(f, {})[t] = True
-        routes = []
-        for f, t, i in self.road.lane_names:
-            row = []
-            for dest in self.destinations:
-                path = shortest_path(graph, t, dest)
-                row.append([f] + path if path else [f, t])
-            routes.append(row)
-        self.route_length = max(len(nodes) - 1 for row in routes for nodes in row)
-        shape = (len(routes), len(self.destinations))
-        self.route_roads = np.zeros(shape + (self.route_length,), np.int32)
-        self.route_ids = np.zeros(shape + (self.route_length,), np.int32)
-        self.route_lens = np.zeros(shape, np.int32)
-        for g, row in enumerate(routes):
-            for d, nodes in enumerate(row):
-                r, ids, n = self.road.route(nodes, first_lane_id=int(self.road.lane_id[g]), length=self.route_length)
-                self.route_roads[g, d], self.route_ids[g, d], self.route_lens[g, d] = r, ids, n
+        self.route_roads, self.route_ids, self.route_lens = route_table(self.road, self.destinations)
+        self.route_length = self.route_roads.shape[-1]
 
     def default_params(self) -> RoundaboutTaskParams:
         raise NotImplementedError  # built by make_roundabout from the config
