@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 import envs_jax
+from envs_jax import nearest_view
 from envs_jax import vehicle as Veh
 from envs_jax.scenarios import merge_agents as MA
 from envs_jax.scenarios.arrival import one_shot_arrival, ranked_arrival
@@ -217,8 +218,8 @@ def test_observation_against_brute_force(count):
     h = rng.uniform(-0.3, 0.3, 7)
     v = rng.uniform(15, 30, 7)
     alive = np.array([True, True, True, False, True, True, True])
-    got = MA.authors_view(jnp.asarray(x), jnp.asarray(y), jnp.asarray(h), jnp.asarray(v), jnp.asarray(alive),
-                          (0, 1, 2), count)
+    got = nearest_view.observe(jnp.asarray(x), jnp.asarray(y), jnp.asarray(h), jnp.asarray(v), jnp.asarray(alive),
+                               np.arange(7), 3, count)
     np.testing.assert_allclose(got, _brute_view(x, y, h, v, alive, (0, 1, 2), count), rtol=1e-6, atol=1e-4)
 
 

@@ -26,7 +26,8 @@ traffic core's keys.
 Observation ``[K, 4 n]`` (the authors' absolute, unnormalised ``x, y, vx, vy``), ``n =
 observed_vehicles`` (default K): row k is agent k's own features, then those of the n - 1
 nearest other vehicles (agents and traffic; Euclidean distance, nearest first, ties in slot
-order), a zero block for each place left without a vehicle closer than 200 m. With K = 2 and
+order), a zero block for each place left without a vehicle closer than 200 m
+(:mod:`envs_jax.nearest_view`, shared with ``roundabout-k``). With K = 2 and
 no traffic this is the two-agent ``[2, 8]`` view, and the whole environment reproduces
 ``envs_jax.make("merge")`` step for step.
 """
@@ -41,7 +42,7 @@ import numpy as np
 from flax import struct
 
 from envs_jax import lanes as L
-from envs_jax import observation
+from envs_jax import nearest_view
 from envs_jax.scenarios import config_values as CV
 from envs_jax.scenarios.arrival import ranked_arrival
 from envs_jax.scenarios.merge import build_road
@@ -89,25 +90,6 @@ class MergeAgentsState(TrafficState):
 
     arrived: jax.Array  # [K] latched: crossed finish_x at some step
     first_arrived: jax.Array  # 0 nobody yet, k + 1 when agent k arrived first
-
-
-def authors_view(x, y, heading, speed, alive, agents, count, perception_distance=observation.PERCEPTION_DISTANCE):
-    """``[K, 4 count]``: for each agent slot of ``agents``, its ``x, y, vx, vy`` and those of the ``count - 1``
-    nearest other alive slots closer than ``perception_distance`` (nearest first, ties in slot order; zeros where
-    there are fewer) — :func:`envs_jax.observation.observe` for any number of rows."""
-    feats = observation.kinematics(x, y, heading, speed)  # [V, 4]
-    agents = jnp.asarray(agents)
-    n_slots = x.shape[0]
-    dx = x[None, :] - x[agents][:, None]
-    dy = y[None, :] - y[agents][:, None]
-    dist = jnp.sqrt(dx * dx + dy * dy)  # [K, V]
-    hidden = (jnp.arange(n_slots)[None, :] == agents[:, None]) | ~alive[None, :]
-    dist = jnp.where(hidden, jnp.inf, dist)
-    order = jnp.argsort(dist, axis=1, stable=True)[:, :count - 1]  # [K, count - 1]
-    visible = jnp.take_along_axis(dist, order, axis=1) < perception_distance
-    others = jnp.where(visible[..., None], feats[order], 0.0)
-    rows = jnp.concatenate([feats[agents][:, None, :], others], axis=1)
-    return rows.reshape(agents.shape[0], 4 * count)
 
 
 class MergeAgentsTask(Task):
@@ -175,8 +157,9 @@ class MergeAgentsEnv(TrafficEnv):
         return self.observe(st, params, key), st
 
     def observe(self, state, params, key=None):
-        return authors_view(state.x, state.y, state.heading, state.speed, state.alive, self.controlled,
-                            self.task.observed_vehicles)
+        # the agents hold slots 0..K-1, so slot order is the view's order (it decides ties)
+        return nearest_view.observe(state.x, state.y, state.heading, state.speed, state.alive,
+                                    np.arange(self.num_slots), self.num_agents, self.task.observed_vehicles)
 
     def _step(self, key, state, action, params, record):
         obs, st, reward, cost, done, info, trajectory = super()._step(key, state, action, params, record)
