@@ -50,13 +50,14 @@ def test_every_planned_run_resolves_to_a_valid_configuration():
 
 
 def _summary(algo, k, per_seed_returns, crash, speed, seeds=4):
-    """A finished run's summary.json with the given per-seed values (agent i's return = base + i)."""
+    """A finished run's summary.json with the given per-seed values (agent i's return = base + i), laid out as
+    train.run writes it (summary: the last-10% statistics; eval: the greedy evaluation's)."""
     ev = {f"return_{i}": {"per_seed": [r + i for r in per_seed_returns]} for i in range(k)}
     ev.update({f"cost_{i}": {"per_seed": [5.0 * c for c in crash]} for i in range(k)})
     ev.update(crash={"per_seed": list(crash)}, speed={"per_seed": list(speed)})
     train = {f: {"last_per_seed": v["per_seed"]} for f, v in ev.items()}
     return {"finished": True, "config": {"algo": algo, "num_seeds": seeds, "total_steps": 1000},
-            "summary": train, "eval": {"summary": ev}}
+            "summary": train, "eval": ev}
 
 
 def _write(study_dir, name, summary):
@@ -114,4 +115,4 @@ def test_study_trains_every_method_and_writes_its_report(tmp_path):
         assert f"| 2 | {method} |" in text
         with open(os.path.join(out, "runs", f"merge-v0_K2_{method}", "summary.json")) as f:
             s = json.load(f)
-        assert s["finished"] and s["config"]["agents"] == 2 and len(s["eval"]["summary"]["speed"]["per_seed"]) == 2
+        assert s["finished"] and s["config"]["agents"] == 2 and len(s["eval"]["speed"]["per_seed"]) == 2

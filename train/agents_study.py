@@ -110,7 +110,7 @@ def measure(summary: dict, key: str, k: int, greedy: bool = True) -> list[float]
 
     def per_seed(field):
         if greedy:
-            return np.asarray(summary["eval"]["summary"][field]["per_seed"], np.float64)
+            return np.asarray(summary["eval"][field]["per_seed"], np.float64)
         return np.asarray(summary["summary"][field]["last_per_seed"], np.float64)
 
     if key in ("return", "cost"):
