@@ -89,6 +89,8 @@ def test_measures_and_report_from_known_per_seed_values(tmp_path):
     assert "csq-chain's crash rate at K = 3 is lower than csq-flat's" in text
     assert "csq-chain's return per agent at K = 3 is lower than csq-flat's" in text
     assert "macpo" not in text.split("## merge-v0")[1].split("Stackelberg")[0]
+    assert "Not finished yet (left out of every table and figure): merge-v0_K2_csq-chain," in text
+    assert "merge-v0_K3_macpo" in text.split("Not finished yet")[1].split("\n")[0]
     assert os.path.getsize(os.path.join(study, "figures", "merge-v0_agents.png")) > 0
     assert "(figures/merge-v0_agents.png)" in text
 
