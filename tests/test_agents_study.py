@@ -118,3 +118,23 @@ def test_study_trains_every_method_and_writes_its_report(tmp_path):
         with open(os.path.join(out, "runs", f"merge-v0_K2_{method}", "summary.json")) as f:
             s = json.load(f)
         assert s["finished"] and s["config"]["agents"] == 2 and len(s["eval"]["speed"]["per_seed"]) == 2
+
+
+def test_report_from_committed_records_matches_the_committed_report(tmp_path):
+    """docs/results/AGENTS.md is what python -m train.agents_study writes from benchmarks/results/agents_study;
+    a folder without runs/ is refused."""
+    pytest.importorskip("matplotlib")
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    src = os.path.join(root, "benchmarks", "results", "agents_study")
+    out = str(tmp_path / "out")
+    cwd = os.getcwd()
+    os.chdir(root)  # the command line the report names is relative to the repository
+    try:
+        assert agents_study.main(["--from", "benchmarks/results/agents_study", "--out", out]) == 0
+    finally:
+        os.chdir(cwd)
+    made = open(os.path.join(out, "AGENTS.md")).read().replace(out, "docs/results")
+    with open(os.path.join(root, "docs", "results", "AGENTS.md")) as f:
+        assert made == f.read()
+    assert os.path.isdir(src)
+    assert agents_study.main(["--from", str(tmp_path), "--out", out]) == 2
