@@ -20,16 +20,7 @@ MAPPOL_DEFAULTS, MAPPOL_HELP, MAPPOL_RULES = option_table(PPOConfig, ("mappo-l",
 MACPO_DEFAULTS, MACPO_HELP, MACPO_RULES = option_table(PPOConfig, ("macpo",))
 
 
-# The discrete scenarios these algorithms take: the K-agent traffic tasks (the authors' two-agent merge and
-# roundabout have no on-policy configuration).
-DISCRETE_SCENARIOS = ("highway", "merge-v0", "merge-cavs")
-
-
 def check(cfg: dict) -> None:
-    if cfg["scenario"] in ("merge", "roundabout"):
-        raise ValueError(f"'{cfg['algo']}' on discrete actions takes --scenario {' or '.join(DISCRETE_SCENARIOS)} "
-                         f"(K agents; e.g. --scenario highway --agents 2), or the continuous intersection and "
-                         f"racetrack; got '{cfg['scenario']}'")
     cycle = cfg["num_envs"] * cfg["rollout_length"]
     for k in ("total_steps", "chunk_steps"):
         if cfg[k] % cycle:
