@@ -14,6 +14,7 @@ import envs_jax  # noqa: E402
 from envs_jax import lanes as L  # noqa: E402
 from envs_jax.road import RoadNetwork  # noqa: E402
 from train import drawing, episode_record, render  # noqa: E402
+from train.video import frame_indices  # noqa: E402
 
 BG, ROAD, WHITE = drawing.COLORS["background"], drawing.COLORS["road"], drawing.COLORS["marking"]
 
@@ -110,6 +111,14 @@ def test_roles_and_crash_colours():
     assert tuple(frame[30, 65]) == drawing.COLORS["follower"]
     with pytest.raises(ValueError, match="role must be"):
         drawing.draw_vehicle(bg, view, 0, 0, 0, "ego")
+    # K agents among traffic: roles by slot, dead slots left out, traffic under the agents
+    roles = drawing.vehicle_roles(4, controlled=(2, 0))
+    assert roles == ["follower", "traffic", "leader", "traffic"]
+    frame = np.asarray(drawing.draw_frame(bg, view, [2.5, 7.0, 2.5, 2.5], [3.0, 3.0, 3.0, 5.5], [0.0] * 4,
+                                          [False] * 4, roles=roles, alive=[True, True, True, False]))
+    assert tuple(frame[30, 20]) == drawing.COLORS["leader"]  # slot 2 drawn over slot 0 at the same place
+    assert tuple(frame[30, 65]) == drawing.COLORS["traffic"]
+    assert tuple(frame[50, 25]) == BG  # the dead slot, centred at (2.5 m, 5.5 m), is not drawn
 
 
 def test_fit_view_contains_points_and_keeps_scale():
@@ -150,8 +159,14 @@ def test_random_episode_gif_has_one_frame_per_stride_and_replays_eagerly(tmp_pat
 
 
 def test_cli_errors_exit_2(capsys, tmp_path):
-    assert render.main(["--scenario", "highway"]) == 2
-    assert "error: unknown scenario 'highway'" in capsys.readouterr().err
+    assert render.main(["--scenario", "highway-v9"]) == 2
+    assert "error: unknown scenario 'highway-v9'; choose a training scenario" in capsys.readouterr().err
+    assert render.main(["--scenario", "intersection", "--agents", "3"]) == 2
+    assert "intersection has exactly 2 agents; got --agents 3" in capsys.readouterr().err
+    assert render.main(["--scenario", "merge-v0", "--agents", "9"]) == 2
+    assert "--agents for merge-v0 must be 2..8" in capsys.readouterr().err
+    assert render.main(["--checkpoint", str(tmp_path), "--agents", "3"]) == 2
+    assert "--agents applies to --scenario" in capsys.readouterr().err
     assert render.main(["--scenario", "merge", "--policy", "fast"]) == 2
     assert "unknown policy 'fast'" in capsys.readouterr().err
     assert render.main(["--checkpoint", str(tmp_path)]) == 2
@@ -178,3 +193,56 @@ def test_batched_lane_geometry_matches_pointwise_lane_positions(scenario):
     assert len(segs) > 0 and np.isfinite(np.asarray(segs)).all()
     x0, y0, x1, y1 = segs[-1]
     assert math.hypot(x1 - x0, y1 - y0) > 0.5 * drawing.STRIPE_LENGTH
+
+
+def _pixel_colour(img, view, x, y):
+    px, py = view.to_pixels(x, y)
+    return tuple(int(c) for c in img[int(py), int(px)])
+
+
+def test_traffic_task_frames_show_agents_and_traffic_in_their_roles(tmp_path):
+    """merge-v0 with three agents among IDM traffic: the record covers every slot, replays eagerly, and the first
+    frame shows each uncovered alive vehicle's centre in its role's colour."""
+    env, params = render.scenario_env("merge-v0", 3)
+    res = render.render_episode(env, params, episode_record.simple_policy(env, "idle"), str(tmp_path / "m.gif"),
+                                seed=1, stride=5, mp4=False)
+    rec, F = res["record"], env.frames
+    V = env.num_slots
+    assert rec["x"].shape == (1 + rec["n"] * F, V) and rec["alive"].shape == rec["x"].shape
+    assert rec["reward"].shape == (rec["n"], 3) and rec["controlled"] == tuple(env.controlled)
+    obs, state = env.reset(jax.random.split(jax.random.PRNGKey(1))[0], params)
+    for t in range(min(rec["n"], 4)):
+        obs, state, reward, cost, done, info = env.step(jax.random.PRNGKey(t), state, rec["action"][t], params)
+        np.testing.assert_allclose(np.asarray(state.x), rec["x"][(t + 1) * F], rtol=1e-6)
+        np.testing.assert_allclose(np.asarray(reward), rec["reward"][t], rtol=1e-6)
+    gif = Image.open(str(tmp_path / "m.gif"))
+    first = np.asarray(gif.convert("RGB"))
+    roles = drawing.vehicle_roles(V, rec["controlled"])
+    x, y, alive = rec["x"][0], rec["y"][0], rec["alive"][0]
+    checked = set()
+    px, py = res["view"].to_pixels(x, y)
+    inside = (px > 10) & (px < res["view"].width - 10) & (py > 10) & (py < res["view"].height - 10)
+    for i in np.flatnonzero(alive & inside):
+        others = np.flatnonzero(alive & (np.arange(V) != i))
+        if (np.hypot(x[others] - x[i], y[others] - y[i]) > 3.0).all():  # no other car covers its centre
+            got = np.asarray(_pixel_colour(first, res["view"], x[i], y[i]))
+            assert np.abs(got - drawing.COLORS[roles[i]]).max() <= 8, (i, roles[i], got)  # GIF palette
+            checked.add(roles[i])
+    assert checked == {"leader", "follower", "traffic"}
+
+
+def test_long_roads_get_a_camera_that_follows_the_leader(tmp_path):
+    env, params = render.scenario_env("highway", 2)
+    rec = episode_record.simulate(env, params, episode_record.simple_policy(env, "idle"), jax.random.PRNGKey(0),
+                                  max_steps=12)
+    frames, view = render.episode_frames(env, params, rec, stride=10)
+    assert view.scale == render.FOLLOW_SCALE and view.width == render.FOLLOW_WIDTH
+    lead = rec["controlled"][0]
+    for f, j in zip(frames, frame_indices(len(rec["x"]), 10)):
+        assert f.size == (render.FOLLOW_WIDTH, view.height)
+        img = np.asarray(f)
+        # the leader sits mid-frame (its centre within a pixel of the middle), in the leader colour
+        cx = render.FOLLOW_WIDTH // 2
+        py = (rec["y"][j, lead] - view.origin_y) * view.scale
+        colour = drawing.COLORS["crashed"] if rec["crashed"][j, lead] else drawing.COLORS["leader"]
+        assert colour in {tuple(int(c) for c in img[int(py), px]) for px in (cx - 1, cx, cx + 1)}

@@ -18,8 +18,8 @@ import math
 import jax
 import numpy as np
 
-__all__ = ["COLORS", "WHOLE_ROAD_EXTENT", "View", "draw_frame", "draw_road", "draw_vehicle", "fit_view",
-           "lane_surfaces", "marking_segments", "road_bounds", "vehicle_corners"]
+__all__ = ["COLORS", "ROLES", "WHOLE_ROAD_EXTENT", "View", "draw_frame", "draw_road", "draw_vehicle", "fit_view",
+           "lane_surfaces", "marking_segments", "road_bounds", "vehicle_corners", "vehicle_roles"]
 
 VEHICLE_LENGTH, VEHICLE_WIDTH = 5.0, 2.0
 FRONT_BAR = 0.6  # metres of the car's front drawn dark
@@ -31,6 +31,7 @@ COLORS = {
     "marking": (255, 255, 255),
     "leader": (50, 200, 0),  # highway-env EGO_COLOR (GREEN)
     "follower": (100, 200, 255),  # highway-env BLUE
+    "traffic": (200, 170, 230),  # background (IDM/MOBIL) vehicles: a pale purple, apart from the agents
     "crashed": (255, 100, 100),  # highway-env RED
     "outline": (60, 60, 60),  # highway-env BLACK
     "obstacle": (200, 200, 0),  # highway-env YELLOW
@@ -207,24 +208,40 @@ def _draw_box(draw, view: View, x, y, heading, length, width, color, front: bool
         draw.polygon(list(zip(bx.tolist(), by.tolist())), fill=COLORS["outline"])
 
 
+ROLES = ("leader", "follower", "traffic")
+
+
 def draw_vehicle(img, view: View, x: float, y: float, heading: float, role: str, crashed: bool = False):
-    """Draw one car (``role`` "leader" or "follower") onto ``img`` in place."""
+    """Draw one car (``role`` "leader", "follower" or "traffic") onto ``img`` in place."""
     from PIL import ImageDraw
 
-    if role not in ("leader", "follower"):
-        raise ValueError(f"role must be 'leader' or 'follower', got {role!r}")
+    if role not in ROLES:
+        raise ValueError(f"role must be one of {', '.join(map(repr, ROLES))}, got {role!r}")
     color = COLORS["crashed"] if crashed else COLORS[role]
     _draw_box(ImageDraw.Draw(img), view, x, y, heading, VEHICLE_LENGTH, VEHICLE_WIDTH, color)
     return img
 
 
-def draw_frame(background, view: View, x, y, heading, crashed, caption: str | None = None):
-    """One frame: a copy of ``background`` with both cars (index 0 leader, 1 follower) and a caption."""
+def vehicle_roles(num_vehicles: int, controlled=(0, 1)) -> list[str]:
+    """Each slot's role: the first controlled slot leads, the other agents follow, every other slot is traffic."""
+    roles = ["traffic"] * num_vehicles
+    for j, i in enumerate(controlled):
+        roles[i] = "leader" if j == 0 else "follower"
+    return roles
+
+
+def draw_frame(background, view: View, x, y, heading, crashed, caption: str | None = None, roles=None,
+               alive=None):
+    """One frame: a copy of ``background`` with every alive vehicle and a caption. ``roles`` per vehicle
+    (default: index 0 leader, 1 follower); traffic is drawn first, then the followers, the leader on top."""
     from PIL import ImageDraw
 
+    roles = vehicle_roles(len(x)) if roles is None else roles
+    alive = np.ones(len(x), bool) if alive is None else np.asarray(alive, bool)
     img = background.copy()
-    for i, role in ((1, "follower"), (0, "leader")):  # leader on top
-        draw_vehicle(img, view, float(x[i]), float(y[i]), float(heading[i]), role, bool(crashed[i]))
+    for role in ("traffic", "follower", "leader"):
+        for i in np.flatnonzero(alive & (np.asarray(roles) == role))[::-1]:
+            draw_vehicle(img, view, float(x[i]), float(y[i]), float(heading[i]), role, bool(crashed[i]))
     if caption:
         ImageDraw.Draw(img).text((6, 4), caption, fill=COLORS["text"])
     return img

@@ -1,8 +1,11 @@
-"""Render a policy's episode: the road from the JAX lane table, the two cars, crashes; GIF (and MP4 with ffmpeg).
+"""Render a policy's episode: the road from the JAX lane table, the agents (leader, followers) and any background
+traffic, crashes; GIF (and MP4 with ffmpeg).
 
 ```
 python -m train.render --checkpoint runs/merge_csq --seed 0           # greedy episode of seed 0's agent
 python -m train.render --scenario racetrack --policy random --out r.gif
+python -m train.render --scenario highway --agents 3 --policy idle    # a training scenario with K agents
+python -m train.render --scenario intersection-v1 --policy random     # any envs_jax traffic task
 ```
 
 The episode is simulated in one jitted ``lax.scan`` (every simulation frame is kept through
@@ -21,33 +24,59 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from train.drawing import WHOLE_ROAD_EXTENT, View, draw_frame, draw_road, fit_view, road_bounds
+from train.drawing import WHOLE_ROAD_EXTENT, View, draw_frame, draw_road, fit_view, road_bounds, vehicle_roles
 from train.episode_record import simple_policy, simulate
 from train.video import frame_indices, write_gif, write_mp4
 
-__all__ = ["episode_frames", "render_episode", "render_checkpoint", "load_checkpoint_policy", "main"]
+__all__ = ["episode_frames", "render_episode", "render_checkpoint", "load_checkpoint_policy", "scenario_env", "main"]
+
+
+FOLLOW_BELOW_SCALE = 2.0  # px/m: when the agents' whole path would be drawn smaller, the camera follows them
+FOLLOW_SCALE, FOLLOW_WIDTH = 4.0, 960  # the following camera: px/m and frame width (240 m of road)
 
 
 def episode_frames(env, params, rec: dict, stride: int = 3, view: View | None = None, title: str = ""):
-    """Pillow frames of a simulated episode (``simulate``), every ``stride``-th simulation frame."""
+    """Pillow frames of a simulated episode (``simulate``), every ``stride``-th simulation frame. Without a
+    ``view``: one fixed view of the agents' paths (and of the whole road when it is compact) or, where those paths
+    are long (highway), a camera that follows the leader (as highway-env's viewer follows its first vehicle).
+    Returns the frames and the first's view."""
+    controlled = list(rec["controlled"])
+    follow = False
     if view is None:
-        xs, ys = rec["x"].ravel(), rec["y"].ravel()
+        xs, ys = rec["x"][:, controlled].ravel(), rec["y"][:, controlled].ravel()
         rx, ry = road_bounds(env.road)
         if max(rx[1] - rx[0], ry[1] - ry[0]) <= WHOLE_ROAD_EXTENT:  # compact road: show all of it
             xs, ys = np.concatenate([xs, rx]), np.concatenate([ys, ry])
         view = fit_view(xs, ys)
-    background = draw_road(env.road, view, params.obstacles)
+        if view.scale < FOLLOW_BELOW_SCALE:  # one canvas over the whole path, cropped around the agents per frame
+            half = FOLLOW_WIDTH / (2 * FOLLOW_SCALE)
+            ends = [xs.min() - half, xs.max() + half]
+            view = fit_view(np.r_[xs, ends], np.r_[ys, ys[:2]], max_width=10**6, max_scale=FOLLOW_SCALE)
+            follow = True
+    background = draw_road(env.road, view, getattr(params, "obstacles", None))
+    roles = vehicle_roles(rec["x"].shape[1], controlled)
     F = rec["frames_per_decision"]
-    ret = np.concatenate([np.zeros((1, 2)), np.cumsum(rec["reward"], axis=0)])  # return after each decision
-    frames = []
+    K = len(controlled)
+    ret = np.concatenate([np.zeros((1, K)), np.cumsum(rec["reward"].reshape(-1, K), axis=0)])  # after each decision
+    frames, views = [], []
     for j in frame_indices(len(rec["x"]), stride):
         d = j // F  # decisions completed at frame j
         t = j / env.simulation_frequency
-        caption = (f"{title}  t={t:4.1f}s  return L {ret[d, 0]:6.1f}  F {ret[d, 1]:6.1f}"
-                   f"{'  CRASH' if rec['crashed'][j].any() else ''}")
-        frames.append(draw_frame(background, view, rec["x"][j], rec["y"][j], rec["heading"][j], rec["crashed"][j],
-                                 caption.strip()))
-    return frames, view
+        returns = (f"L {ret[d, 0]:6.1f}  F {ret[d, 1]:6.1f}" if K == 2
+                   else " ".join(f"{r:5.1f}" for r in ret[d]))
+        crash = rec["crashed"][j][controlled].any()
+        caption = f"{title}  t={t:4.1f}s  return {returns}{'  CRASH' if crash else ''}"
+        bg, v = background, view
+        if follow:
+            width = min(FOLLOW_WIDTH, view.width)
+            cx = float(rec["x"][j][controlled[0]])
+            left = int(np.clip(round((cx - view.origin_x) * view.scale - width / 2), 0, view.width - width))
+            bg = background.crop((left, 0, left + width, view.height))
+            v = View(view.origin_x + left / view.scale, view.origin_y, view.scale, width, view.height)
+        views.append(v)
+        frames.append(draw_frame(bg, v, rec["x"][j], rec["y"][j], rec["heading"][j], rec["crashed"][j],
+                                 caption.strip(), roles, rec["alive"][j]))
+    return frames, views[0]
 
 
 def render_episode(env, params, policy: Callable, out: str, seed: int = 0, stride: int = 3, title: str = "",
@@ -90,8 +119,11 @@ def load_checkpoint_policy(run_dir: str, seed: int = 0, step: int | None = None)
     config, trainer, state, _ = restore_run(run_dir, step)
     agent_state = jax.tree.map(lambda x: jnp.asarray(x[seed]), state.agent)
     agent = trainer.agent
-    policy = lambda key, obs: agent.greedy_act(agent_state, obs)
     env = trainer.env
+    if hasattr(env, "controlled"):  # traffic envs: the agents see their observation flattened, as in training
+        policy = lambda key, obs: agent.greedy_act(agent_state, obs.reshape(obs.shape[:1] + (-1,)))
+    else:
+        policy = lambda key, obs: agent.greedy_act(agent_state, obs)
     return env, with_values(config["scenario"], env.default_params, config["env"]), policy, config
 
 
@@ -108,13 +140,38 @@ def render_checkpoint(run_dir: str, out: str | None = None, seed: int = 0, strid
 # Command line
 
 
+def scenario_env(name: str, agents: int | None = None):
+    """``(env, params)`` of a training scenario (as ``python -m train --scenario NAME --agents K`` builds it) or of
+    an :mod:`envs_jax` traffic task with ``agents`` controlled vehicles."""
+    import envs_jax
+    from train.config import SCENARIO_AGENTS, SCENARIOS
+    from train.trainer import make_env
+
+    if name in SCENARIOS:
+        default, lo, hi = SCENARIO_AGENTS[name]
+        if agents is not None and not lo <= agents <= hi:
+            raise ValueError(f"--agents for {name} must be {lo}..{hi}" if lo < hi else
+                             f"{name} has exactly {lo} agents; got --agents {agents}")
+        env, _, params = make_env(name, agents)
+        return env, params
+    if name in envs_jax.available_tasks():
+        env = envs_jax.make(name) if agents is None else envs_jax.make(name, controlled_vehicles=agents)
+        return env, env.default_params
+    raise ValueError(f"unknown scenario {name!r}; choose a training scenario ({', '.join(SCENARIOS)}) or a "
+                     f"traffic task ({', '.join(envs_jax.available_tasks())})")
+
+
 def parse_args(argv=None):
     p = argparse.ArgumentParser(prog="python -m train.render", description=(
         "Render one episode as a GIF (and an MP4 beside it when ffmpeg is installed): a trained run's greedy "
         "policy (--checkpoint RUN_DIR) or a simple policy on a scenario (--scenario NAME --policy random|idle)."))
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument("--checkpoint", metavar="RUN_DIR", help="run folder written by python -m train")
-    src.add_argument("--scenario", help="merge | roundabout | intersection | racetrack (with --policy)")
+    src.add_argument("--scenario", help="a training scenario (python -m train --scenario: merge, roundabout, "
+                     "intersection, racetrack, highway, merge-v0, merge-cavs, racetrack-v0) or an envs_jax traffic "
+                     "task (e.g. intersection-v1, roundabout-v0), with --policy")
+    p.add_argument("--agents", type=int, default=None, metavar="K",
+                   help="with --scenario: controlled vehicles (default: the scenario's)")
     p.add_argument("--policy", default="random", help="without --checkpoint: random (default) | idle")
     p.add_argument("--seed", type=int, default=0,
                    help="with --checkpoint: which seed's agent (index); also seeds the episode (default 0)")
@@ -132,25 +189,24 @@ def main(argv=None) -> int:
         if args.stride < 1:
             raise ValueError(f"--stride must be >= 1, got {args.stride}")
         if args.checkpoint:
+            if args.agents is not None:
+                raise ValueError("--agents applies to --scenario: a checkpoint's run fixes its number of agents")
             res = render_checkpoint(args.checkpoint, args.out, args.seed, args.stride, not args.no_mp4)
         else:
-            import envs_jax
-
-            if args.scenario not in envs_jax.available_scenarios():
-                raise ValueError(f"unknown scenario {args.scenario!r}; choose one of "
-                                 f"{', '.join(envs_jax.available_scenarios())}")
-            env = envs_jax.make(args.scenario)
+            env, params = scenario_env(args.scenario, args.agents)
             policy = simple_policy(env, args.policy)
             out = args.out or os.path.join("runs", "render", f"{args.scenario}_{args.policy}_seed{args.seed}.gif")
-            res = render_episode(env, env.default_params, policy, out, seed=args.seed, stride=args.stride,
+            res = render_episode(env, params, policy, out, seed=args.seed, stride=args.stride,
                                  title=f"{args.scenario} {args.policy}", mp4=not args.no_mp4)
     except ValueError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
     rec = res["record"]
+    ret = rec["reward"].reshape(rec["n"], -1).sum(0)
+    returns = f"L {ret[0]:.1f} F {ret[1]:.1f}" if len(ret) == 2 else " ".join(f"{r:.1f}" for r in ret)
+    crash = rec["crashed"][-1][list(rec["controlled"])].any()
     print(f"wrote {', '.join(res['paths'])}: {res['frames']} frames at {res['fps']:g} fps; {rec['n']} decisions, "
-          f"return L {rec['reward'][:, 0].sum():.1f} F {rec['reward'][:, 1].sum():.1f}, "
-          f"crash {'yes' if rec['crashed'][-1].any() else 'no'}")
+          f"return {returns}, crash {'yes' if crash else 'no'}")
     return 0
 
 
