@@ -18,6 +18,7 @@ from envs_jax.scenarios.merge_agents import make_merge_agents
 from envs_jax.scenarios.merge_cavs import make_merge_cavs
 from envs_jax.scenarios.merge_traffic import make_merge
 from envs_jax.scenarios.racetrack import Racetrack
+from envs_jax.scenarios.racetrack_agents import make_racetrack_agents
 from envs_jax.scenarios.racetrack_traffic import make_racetrack
 from envs_jax.scenarios.roundabout import Roundabout
 from envs_jax.scenarios.roundabout_agents import make_roundabout_agents
@@ -36,6 +37,7 @@ register_task("merge-cavs-v0", make_merge_cavs)
 register_task("roundabout-v0", make_roundabout)
 register_task("roundabout-k", make_roundabout_agents)
 register_task("racetrack-v0", make_racetrack)
+register_task("racetrack-k", make_racetrack_agents, takes_action_mode=True)
 register_task("intersection-v0", make_intersection)
 register_task("intersection-multi-agent-v0", make_intersection)
 register_task("intersection-v1", make_intersection_continuous)

@@ -12,6 +12,7 @@ from envs_jax.env import DrivingEnv, Scenario
 _SCENARIOS: dict[str, Callable[[], Scenario]] = {}
 # traffic tasks (V vehicle slots, K controlled): name -> factory(name, env_config, **overrides) -> TrafficEnv
 _TASKS: dict[str, Callable[..., Any]] = {}
+_TASKS_WITH_ACTION_MODE: set[str] = set()  # tasks whose factory takes ``action_mode`` (the authors' continuous ones)
 _CACHE: dict[str, Scenario] = {}
 
 STATIC_KEYS = ("simulation_frequency", "policy_frequency")
@@ -30,9 +31,12 @@ def register(name: str, factory: Callable[[], Scenario]) -> None:
     _SCENARIOS[name] = factory
 
 
-def register_task(name: str, factory: Callable[..., Any]) -> None:
-    """Register a traffic task: ``factory(name, env_config, **overrides)`` returns its environment."""
+def register_task(name: str, factory: Callable[..., Any], takes_action_mode: bool = False) -> None:
+    """Register a traffic task: ``factory(name, env_config, **overrides)`` returns its environment
+    (``takes_action_mode``: ``make``'s ``action_mode`` is passed on as a keyword)."""
     _TASKS[name] = factory
+    if takes_action_mode:
+        _TASKS_WITH_ACTION_MODE.add(name)
 
 
 def available_scenarios() -> list[str]:
@@ -74,7 +78,9 @@ def make(name: str, env_config: dict | None = None, action_mode: str | None = No
     else raises ``ValueError``.
     """
     if name in _TASKS:
-        if action_mode is not None:
+        if action_mode is not None and name in _TASKS_WITH_ACTION_MODE:
+            overrides["action_mode"] = action_mode
+        elif action_mode is not None:
             raise ValueError(f"{name}: action_mode does not apply (discrete meta-actions); set 'action' instead")
         return _TASKS[name](name, env_config, **overrides)
     if env_config is not None and action_mode is None:

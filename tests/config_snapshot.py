@@ -56,7 +56,9 @@ def resolved_configs() -> dict:
               ["--scenario=racetrack-v0", "--algo=cs-maddpg", "--agents=4", "--hierarchy=0,1|2,3"],
               ["--scenario=racetrack-v0", "--algo=s-maddpg", "--agents=2", "--hierarchy=1|0"],
               ["--scenario=racetrack-v0", "--algo=c-maddpg", "--hierarchy=0|1|2"],
-              ["--scenario=roundabout", "--agents=3", "--hierarchy=0|1|2"]]
+              ["--scenario=roundabout", "--agents=3", "--hierarchy=0|1|2"],
+              ["--scenario=racetrack", "--agents=4", "--algo=cs-maddpg", "--hierarchy=0,1|2,3"],
+              ["--scenario=racetrack", "--agents=3", "--algo=macpo"]]
     out = {}
     for argv in cases:
         try:

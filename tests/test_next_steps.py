@@ -59,8 +59,14 @@ def test_missing_files_are_not_listed(tmp_path):
 
 
 def test_k_agent_highway_run_is_offered_only_what_supports_it(tmp_path):
-    """No renderer and no study for the K-agent traffic task yet: evaluation and resumption only."""
+    """A K-agent traffic task: the renderer, evaluation and resumption, and no study (none covers highway)."""
     out = _run_folder(tmp_path, "hw")
     cmds = _commands(next_steps(out, {"scenario": "highway", "total_steps": 20000, "buffer_size": 500000}))
-    assert [c[:3] for c in cmds] == [["python", "-m", "train"]] * 2
-    assert cli.parse_args(cmds[0][3:]).eval_only == out and cli.parse_args(cmds[1][3:]).resume
+    assert [c[:3] for c in cmds] == [["python", "-m", "train.render"]] + [["python", "-m", "train"]] * 2
+    from train import render
+
+    args = render.parse_args(cmds[0][3:])
+    assert args.checkpoint == out and args.seed == 0
+    assert cli.parse_args(cmds[1][3:]).eval_only == out and cli.parse_args(cmds[2][3:]).resume
+    cmds = _commands(next_steps(out, {"scenario": "merge-v0", "total_steps": 20000, "buffer_size": 500000}))
+    assert cmds[-1] == ["python", "-m", "train.experiments", "--study", "agents"]

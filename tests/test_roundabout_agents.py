@@ -263,7 +263,8 @@ def test_cli_trains_roundabout_with_three_agents(tmp_path, capsys):
                      "--chunk-steps", "200", "--set", "warmup=64", "--set", "batch_size=16", "--eval-episodes", "2",
                      "--out", out]) == 0
     printed = capsys.readouterr().out
-    assert "python -m train.render" not in printed  # no renderer for the traffic core
+    assert f"python -m train.render --checkpoint {out}" in printed  # the renderer draws the K agents
+    assert "train.experiments" not in printed  # no study of the K-agent roundabout
     summary = json.load(open(os.path.join(out, "summary.json")))
     assert summary["finished"] and summary["config"]["agents"] == 3
     assert summary["timing"]["env_steps_run"] == 400

@@ -51,12 +51,13 @@ def next_steps(out: str, config: dict) -> str:
         resume = (f"python -m train --out {q} --resume --steps {longer}", f"train it further, as a {longer}-step run")
     cmds = [(f"python -m train.render --checkpoint {q} --seed 0", "a GIF of seed 0's greedy episode"),
             (f"python -m train --eval-only {q} --eval-episodes 20", "evaluate the saved policies again"),
-            resume,
-            (f"python -m train.experiments --only {config['scenario']}",
-             "every algorithm on this scenario: runs, figures, RESULTS.md")]
-    # the traffic-core environments (K-agent tasks, the authors' scenarios with K > 2) have no renderer and no study yet
-    if config["scenario"] in TRAFFIC_SCENARIOS or int(config.get("agents") or 2) > 2:
-        cmds = cmds[1:3]
+            resume]
+    if config["scenario"] == "merge-v0":
+        cmds.append(("python -m train.experiments --study agents",
+                     "hierarchies against flat learners at K = 2, 3, 4: runs, figure, AGENTS.md"))
+    elif config["scenario"] not in TRAFFIC_SCENARIOS and int(config.get("agents") or 2) == 2:
+        cmds.append((f"python -m train.experiments --only {config['scenario']}",
+                     "every algorithm on this scenario: runs, figures, RESULTS.md"))
     width = max(len(c) for c, _ in cmds)
     lines.append("next:")
     lines += [f"  {c:<{width}}  # {why}" for c, why in cmds]
