@@ -11,6 +11,7 @@ from envs_jax.env import DrivingEnv, EnvParams, EnvState
 from envs_jax.registry import available_scenarios, available_tasks, make, register, register_task
 from envs_jax.scenarios.highway import make_highway
 from envs_jax.scenarios.intersection import Intersection
+from envs_jax.scenarios.intersection_agents import make_intersection_agents
 from envs_jax.scenarios.intersection_continuous import make_intersection_continuous
 from envs_jax.scenarios.intersection_traffic import make_intersection
 from envs_jax.scenarios.merge import Merge
@@ -41,6 +42,7 @@ register_task("racetrack-k", make_racetrack_agents, takes_action_mode=True)
 register_task("intersection-v0", make_intersection)
 register_task("intersection-multi-agent-v0", make_intersection)
 register_task("intersection-v1", make_intersection_continuous)
+register_task("intersection-k", make_intersection_agents, takes_action_mode=True)
 
 __all__ = ["make", "available_scenarios", "available_tasks", "register", "register_task", "DrivingEnv", "EnvParams",
            "EnvState", "AutoResetWrapper", "rollout"]

@@ -58,7 +58,8 @@ def resolved_configs() -> dict:
               ["--scenario=racetrack-v0", "--algo=c-maddpg", "--hierarchy=0|1|2"],
               ["--scenario=roundabout", "--agents=3", "--hierarchy=0|1|2"],
               ["--scenario=racetrack", "--agents=4", "--algo=cs-maddpg", "--hierarchy=0,1|2,3"],
-              ["--scenario=racetrack", "--agents=3", "--algo=macpo"]]
+              ["--scenario=racetrack", "--agents=3", "--algo=macpo"],
+              ["--scenario=intersection", "--agents=4", "--algo=s-maddpg", "--hierarchy=0|1|2|3"]]
     out = {}
     for argv in cases:
         try:

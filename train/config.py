@@ -45,10 +45,10 @@ SCENARIOS = {"merge": "discrete", "roundabout": "discrete", "intersection": "con
 # `merge-cavs` is MARL_CAVs' merge (envs_jax.make("merge-cavs-v0")) at the traffic density whose most CAVs are K:
 # K = 3 easy (1-3 CAVs per episode), K = 4 medium (2-4); absent agents are terminated with zero reward and cost.
 # `racetrack-v0` is highway-env's racetrack-v0 with `agents` controlled vehicles (continuous steering, per-agent
-# reward and cost; envs_jax.make("racetrack-v0", controlled_vehicles=K)). `merge`, `roundabout` and `racetrack`
-# with K >= 3 are the authors' scenarios on the traffic core (envs_jax.make("merge-k" / "roundabout-k" /
+# reward and cost; envs_jax.make("racetrack-v0", controlled_vehicles=K)). The authors' four scenarios with K >= 3
+# are their versions on the traffic core (envs_jax.make("merge-k" / "roundabout-k" / "intersection-k" /
 # "racetrack-k", controlled_vehicles=K)); K = 2 the two-agent env.
-SCENARIO_AGENTS = {"merge": (2, 2, 8), "roundabout": (2, 2, 8), "intersection": (2, 2, 2), "racetrack": (2, 2, 8),
+SCENARIO_AGENTS = {"merge": (2, 2, 8), "roundabout": (2, 2, 8), "intersection": (2, 2, 8), "racetrack": (2, 2, 8),
                    "highway": (2, 2, 8), "merge-v0": (2, 2, 8), "merge-cavs": (3, 3, 4), "racetrack-v0": (3, 2, 8)}
 # The scenarios built on the traffic core (K controlled vehicles among background traffic).
 TRAFFIC_SCENARIOS = ("highway", "merge-v0", "merge-cavs", "racetrack-v0")
@@ -83,9 +83,9 @@ COMMON_HELP: dict[str, str] = {
     "scenario": "driving scenario: merge | roundabout | highway | merge-v0 | merge-cavs (discrete actions); "
                 "intersection | "
                 "racetrack | racetrack-v0 (continuous)",
-    "agents": "controlled agents K (null: the scenario's default; intersection: 2; merge, roundabout, racetrack: "
-              "2, up to 8 (K >= 3: the authors' scenario with K agents, merge-k / roundabout-k / racetrack-k); "
-              "highway, merge-v0: 2, up to 8; merge-cavs: 3 (easy traffic) or 4 (medium); racetrack-v0: 3, 2 to 8)",
+    "agents": "controlled agents K (null: the scenario's default; merge, roundabout, intersection, racetrack: 2, "
+              "up to 8 (K >= 3: the authors' scenario with K agents, <scenario>-k); highway, merge-v0: 2, up to 8; "
+              "merge-cavs: 3 (easy traffic) or 4 (medium); racetrack-v0: 3, 2 to 8)",
     "algo": "training algorithm (see --help for the list)",
     "total_steps": "environment steps per seed, over all its parallel envs (defaults: the authors' budgets)",
     "num_seeds": "independent training runs, vmapped in one program",

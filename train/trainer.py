@@ -58,7 +58,8 @@ class Trainer(NamedTuple):
 # leave the task at x = 370 m (at most 17 s from the farthest start), so the limit only cuts stalled episodes.
 MERGE_V0_DURATION = 30.0
 # The authors' scenarios with K >= 3 agents: their versions on the traffic core (K = 2 keeps the two-agent env).
-AUTHORS_K_TASKS = {"merge": "merge-k", "roundabout": "roundabout-k", "racetrack": "racetrack-k"}
+AUTHORS_K_TASKS = {"merge": "merge-k", "roundabout": "roundabout-k", "intersection": "intersection-k",
+                   "racetrack": "racetrack-k"}
 
 
 def make_env(scenario: str, agents: int | None = None, env_params: dict | None = None):
@@ -66,8 +67,8 @@ def make_env(scenario: str, agents: int | None = None, env_params: dict | None =
     controlled vehicles (default 2), ``merge-v0`` likewise highway-env's merge-v0 (with a time limit of
     ``MERGE_V0_DURATION`` seconds), ``merge-cavs`` MARL_CAVs' merge with at most ``agents`` CAVs (3: easy traffic,
     the default; 4: medium), ``racetrack-v0`` highway-env's racetrack with ``agents`` controlled vehicles (default
-    3), their observations flattened per agent (:mod:`envs_jax.traffic_autoreset`); ``merge``, ``roundabout`` and
-    ``racetrack`` with ``agents`` >= 3 the authors' scenarios with K agents (``merge-k``, ``roundabout-k``,
+    3), their observations flattened per agent (:mod:`envs_jax.traffic_autoreset`); the authors' four scenarios
+    with ``agents`` >= 3 their versions with K agents (``merge-k``, ``roundabout-k``, ``intersection-k``,
     ``racetrack-k``, same wrapper).
     ``env_params``: values replacing fields of the default params (a configuration's ``env``,
     :mod:`train.env_params`)."""
