@@ -43,7 +43,8 @@ def episode_frames(env, params, rec: dict, stride: int = 3, view: View | None = 
     controlled = list(rec["controlled"])
     follow = False
     if view is None:
-        xs, ys = rec["x"][:, controlled].ravel(), rec["y"][:, controlled].ravel()
+        shown = rec["alive"][:, controlled]  # an agent absent from the episode (merge-cavs) has no path
+        xs, ys = rec["x"][:, controlled][shown], rec["y"][:, controlled][shown]
         rx, ry = road_bounds(env.road)
         if max(rx[1] - rx[0], ry[1] - ry[0]) <= WHOLE_ROAD_EXTENT:  # compact road: show all of it
             xs, ys = np.concatenate([xs, rx]), np.concatenate([ys, ry])
