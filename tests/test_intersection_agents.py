@@ -160,3 +160,17 @@ def test_cli_trains_intersection_with_four_agents(tmp_path, capsys):
     summary = json.load(open(os.path.join(out, "summary.json")))
     assert summary["finished"] and summary["config"]["agents"] == 4
     assert all(np.isfinite(v["per_seed"]).all() for v in summary["eval"].values() if isinstance(v, dict))
+
+
+@pytest.mark.slow
+def test_pettingzoo_checker_passes():
+    """PettingZoo's own API checker on the framework view of the K-agent task."""
+    import warnings
+
+    from pettingzoo.test import parallel_api_test
+
+    from envs_jax.views import PettingZooDrivingEnv
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        parallel_api_test(PettingZooDrivingEnv(envs_jax.make("intersection-k", controlled_vehicles=3)), num_cycles=30)

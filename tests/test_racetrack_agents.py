@@ -204,3 +204,17 @@ def test_cli_trains_racetrack_with_three_agents(tmp_path, capsys, algo, hierarch
     assert summary["finished"] and summary["config"]["agents"] == 3
     assert len(summary["eval"]["leader_return"]["per_seed"]) == 2
     assert all(np.isfinite(v["per_seed"]).all() for v in summary["eval"].values() if isinstance(v, dict))
+
+
+@pytest.mark.slow
+def test_pettingzoo_checker_passes():
+    """PettingZoo's own API checker on the framework view of the K-agent task."""
+    import warnings
+
+    from pettingzoo.test import parallel_api_test
+
+    from envs_jax.views import PettingZooDrivingEnv
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        parallel_api_test(PettingZooDrivingEnv(envs_jax.make("racetrack-k", controlled_vehicles=3, other_vehicles=2)), num_cycles=30)
