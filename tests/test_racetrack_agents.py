@@ -217,4 +217,5 @@ def test_pettingzoo_checker_passes():
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        parallel_api_test(PettingZooDrivingEnv(envs_jax.make("racetrack-k", controlled_vehicles=3, other_vehicles=2)), num_cycles=30)
+        env = envs_jax.make("racetrack-k", controlled_vehicles=3, other_vehicles=2)
+        parallel_api_test(PettingZooDrivingEnv(env), num_cycles=30)
