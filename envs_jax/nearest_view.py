@@ -42,3 +42,16 @@ def observe(x, y, heading, speed, alive, order, num_observers: int, count: int,
     visible = jnp.take_along_axis(dist, nearest, axis=1) < perception_distance
     others = jnp.where(visible[..., None], feats[nearest], 0.0)  # [K, count - 1, 4]
     return jnp.concatenate([feats[:k], others.reshape(k, 4 * (count - 1))], axis=-1)
+
+
+class NearestViewEnv:
+    """Mixin for a traffic env whose agents observe this view: the task names ``view_order`` (the slots, agents
+    first) and ``vehicles_count`` (rows per agent). Call :meth:`use_nearest_view` after the env's ``__init__``."""
+
+    def use_nearest_view(self) -> None:
+        self.obs_config = None
+        self.obs_shape = (self.num_agents, 4 * self.task.vehicles_count)
+
+    def observe(self, state, params, key=None):
+        return observe(state.x, state.y, state.heading, state.speed, state.alive, self.task.view_order,
+                       self.num_agents, self.task.vehicles_count)

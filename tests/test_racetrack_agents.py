@@ -7,8 +7,6 @@ agent of a larger grid.
 
 from __future__ import annotations
 
-import functools
-
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -17,31 +15,7 @@ import pytest
 import envs_jax
 from envs_jax import lane_locate as LL
 from envs_jax.scenarios import racetrack_agents as RK
-
-PARITY_TOL = 1e-9  # x64; the two programs compute the same expressions
-
-
-@functools.lru_cache(maxsize=None)
-def _episodes_fn(name: str, x64: bool, **kw):
-    """Jitted, vmapped episodes of fixed length: per-step agent state, rewards, costs, flags and observations."""
-    env = envs_jax.make(name, **kw)
-    idx = np.asarray(getattr(env, "controlled", (0, 1)))
-
-    def episode(actions):
-        obs0, st0 = env.reset(jax.random.key(0))
-
-        def body(st, action):
-            obs, st, reward, cost, done, info = env._step_jit(jax.random.key(1), st, action, env.default_params)[:6]
-            out = dict(obs=obs, x=st.x[idx], y=st.y[idx], heading=st.heading[idx], speed=st.speed[idx],
-                       crashed=st.crashed[idx], on_road=st.on_road[idx], reward=reward, cost=cost,
-                       terminated=info["terminated"], truncated=info["truncated"], done=done)
-            return st, out
-
-        _, out = jax.lax.scan(body, st0, actions)
-        init = dict(obs=obs0, x=st0.x[idx], y=st0.y[idx], heading=st0.heading[idx], speed=st0.speed[idx])
-        return init, out
-
-    return env, jax.jit(jax.vmap(episode))
+from tests.two_agent_parity import compare
 
 
 def _actions(episodes, steps, seed, k=2, d=1):
@@ -53,24 +27,9 @@ def _actions(episodes, steps, seed, k=2, d=1):
 
 
 def _compare_with_two_agent_env(episodes: int, steps: int, seed: int, action_mode: str = "lateral"):
-    d = 2 if action_mode == "both" else 1
-    actions = _actions(episodes, steps, seed, d=d)
-    _, two = _episodes_fn("racetrack", True, **({} if action_mode == "lateral" else {"action_mode": action_mode}))
-    _, k2 = _episodes_fn("racetrack-k", True, controlled_vehicles=2, action_mode=action_mode)
-    (init_a, out_a), (init_b, out_b) = jax.device_get(two(actions)), jax.device_get(k2(actions))
-    for key in init_a:
-        np.testing.assert_allclose(init_b[key], init_a[key], rtol=0, atol=PARITY_TOL, err_msg=key)
-    lengths = []
-    for e in range(episodes):
-        done = np.asarray(out_a["done"][e])
-        n = int(np.argmax(done)) + 1 if done.any() else steps
-        lengths.append(n)
-        for key in ("obs", "x", "y", "heading", "speed", "reward", "cost"):
-            np.testing.assert_allclose(out_b[key][e, :n], out_a[key][e, :n], rtol=0, atol=PARITY_TOL,
-                                       err_msg=f"episode {e}: {key}")
-        for key in ("crashed", "on_road", "terminated", "truncated", "done"):
-            np.testing.assert_array_equal(out_b[key][e, :n], out_a[key][e, :n], err_msg=f"episode {e}: {key}")
-    return lengths, out_a
+    actions = _actions(episodes, steps, seed, d=2 if action_mode == "both" else 1)
+    two = ("racetrack", {} if action_mode == "lateral" else {"action_mode": action_mode})
+    return compare(two, ("racetrack-k", {"controlled_vehicles": 2, "action_mode": action_mode}), actions)
 
 
 def test_two_agents_reproduce_the_two_agent_racetrack(x64):

@@ -7,7 +7,6 @@ termination rule on hand-made positions.
 
 from __future__ import annotations
 
-import functools
 import math
 
 import jax
@@ -18,53 +17,14 @@ import pytest
 import envs_jax
 from envs_jax import vehicle as Veh
 from envs_jax.scenarios import roundabout_agents as RA
+from tests.two_agent_parity import compare
 
-PARITY_TOL = 1e-9  # x64; the two programs compute the same expressions, so equality is expected
 DIAGONAL = math.hypot(Veh.LENGTH, Veh.WIDTH)  # centres farther apart than this cannot overlap
-
-
-@functools.lru_cache(maxsize=None)
-def _episodes_fn(name: str, x64: bool, **kw):
-    """Jitted, vmapped episodes of fixed length: per-step agent state, rewards, costs, flags and observations."""
-    env = envs_jax.make(name, **kw)
-    idx = np.asarray(getattr(env, "controlled", (0, 1)))
-
-    def episode(actions):
-        obs0, st0 = env.reset(jax.random.key(0))
-
-        def body(st, action):
-            obs, st, reward, cost, done, info = env._step_jit(jax.random.key(1), st, action, env.default_params)[:6]
-            out = dict(obs=obs, x=st.x[idx], y=st.y[idx], heading=st.heading[idx], speed=st.speed[idx],
-                       crashed=st.crashed[idx], reward=reward, cost=cost, terminated=info["terminated"],
-                       truncated=info["truncated"], done=done)
-            return st, out
-
-        _, out = jax.lax.scan(body, st0, actions)
-        init = dict(obs=obs0, x=st0.x[idx], y=st0.y[idx], heading=st0.heading[idx], speed=st0.speed[idx])
-        return init, out
-
-    return env, jax.jit(jax.vmap(episode))
 
 
 def _compare_with_two_agent_env(episodes: int, steps: int, seed: int):
     actions = jnp.asarray(np.random.default_rng(seed).integers(0, 5, (episodes, steps, 2)), jnp.int32)
-    _, two = _episodes_fn("roundabout", True)
-    _, k2 = _episodes_fn("roundabout-k", True, controlled_vehicles=2)
-    (init_a, out_a), (init_b, out_b) = jax.device_get(two(actions)), jax.device_get(k2(actions))
-    # both resets are deterministic: the same initial state without injection
-    for key in init_a:
-        np.testing.assert_allclose(init_b[key], init_a[key], rtol=0, atol=PARITY_TOL, err_msg=key)
-    lengths = []
-    for e in range(episodes):
-        done = np.asarray(out_a["done"][e])
-        n = int(np.argmax(done)) + 1 if done.any() else steps
-        lengths.append(n)
-        for key in ("obs", "x", "y", "heading", "speed", "reward", "cost"):
-            np.testing.assert_allclose(out_b[key][e, :n], out_a[key][e, :n], rtol=0, atol=PARITY_TOL,
-                                       err_msg=f"episode {e}: {key}")
-        for key in ("crashed", "terminated", "truncated", "done"):
-            np.testing.assert_array_equal(out_b[key][e, :n], out_a[key][e, :n], err_msg=f"episode {e}: {key}")
-    return lengths, out_a
+    return compare(("roundabout", {}), ("roundabout-k", {"controlled_vehicles": 2}), actions)
 
 
 def test_two_agents_reproduce_the_two_agent_roundabout(x64):

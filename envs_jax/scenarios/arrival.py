@@ -1,8 +1,15 @@
-"""The authors' one-shot arrival bonus (merge and intersection): first to arrive gets more."""
+"""The authors' one-shot arrival bonus (merge and intersection): first to arrive gets more; the bookkeeping of the
+K-agent versions on the traffic core."""
 
 from __future__ import annotations
 
+import dataclasses
+
+import jax
 import jax.numpy as jnp
+from flax import struct
+
+from envs_jax.traffic_state import TrafficState
 
 
 def one_shot_arrival(here, arrived, first_arrived, first_reward, second_reward):
@@ -41,3 +48,27 @@ def ranked_arrival(here, arrived, first_arrived, first_reward, second_reward):
     bonus = jnp.where(new, jnp.where(first, first_reward, second_reward), 0.0)
     who = jnp.where(jnp.any(first), jnp.argmax(first) + 1, first_arrived)
     return bonus, arrived | here, who.astype(jnp.int32)
+
+
+@struct.dataclass
+class ArrivalState(TrafficState):
+    """:class:`TrafficState` plus the arrival bookkeeping of the agents (``merge-k``, ``intersection-k``)."""
+
+    arrived: jax.Array  # [K] latched: reached its goal at some step
+    first_arrived: jax.Array  # 0 nobody yet, k + 1 when agent k arrived first
+
+
+class ArrivalBookkeeping:
+    """Mixin for a traffic env whose task's ``outcome`` returns ``info["arrived"]`` and ``info["first_arrived"]``
+    (:func:`ranked_arrival`): the state starts with nobody arrived and keeps the flags from step to step."""
+
+    def state_from(self, init: dict, params, key=None):
+        _, st = super().state_from(init, params, key)
+        fields = {f.name: getattr(st, f.name) for f in dataclasses.fields(st)}
+        st = ArrivalState(**fields, arrived=jnp.zeros(self.num_agents, bool), first_arrived=jnp.zeros((), jnp.int32))
+        return self.observe(st, params, key), st
+
+    def _step(self, key, state, action, params, record):
+        obs, st, reward, cost, done, info, trajectory = super()._step(key, state, action, params, record)
+        st = st.replace(arrived=info["arrived"], first_arrived=info["first_arrived"])
+        return obs, st, reward, cost, done, info, trajectory

@@ -229,3 +229,14 @@ def config_given(name: str, cfg: dict, own_keys, env_config, overrides, connecte
     if given.pop("neighbour_vehicles_connected_lanes", False) and connected_lanes is not None:
         raise ValueError(f"{name}: neighbour_vehicles_connected_lanes=True is not supported: {connected_lanes}")
     return given
+
+
+def keywords_only(name, env_config, values: dict, param_keys, other_keys) -> None:
+    """The authors' K-agent tasks take keywords only: refuse an ``env_config`` dict and any keyword outside
+    ``param_keys`` (the params' numbers) and ``other_keys`` (the factory's own), naming what is allowed."""
+    allowed = ", ".join(list(other_keys) + list(param_keys))
+    if env_config is not None:
+        raise ValueError(f"{name}: env_config is not read; give the values as keywords ({allowed})")
+    unknown = sorted(set(values) - set(param_keys))
+    if unknown:
+        raise ValueError(f"{name}: unknown parameter(s) {unknown}; allowed: {allowed}")

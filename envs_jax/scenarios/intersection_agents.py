@@ -33,7 +33,6 @@ and enters and leaves during an episode, is ``intersection-v0`` / ``intersection
 
 from __future__ import annotations
 
-import dataclasses
 from typing import Any
 
 import jax
@@ -45,11 +44,10 @@ from envs_jax import lanes as L
 from envs_jax import nearest_view
 from envs_jax.continuous_traffic_env import ContinuousTrafficEnv
 from envs_jax.scenarios import config_values as CV
-from envs_jax.scenarios.arrival import ranked_arrival
+from envs_jax.scenarios.arrival import ArrivalBookkeeping, ArrivalState, ranked_arrival
 from envs_jax.scenarios.continuous import action_flags
 from envs_jax.scenarios.intersection import build_road
 from envs_jax.traffic_env import Task, TrafficParams
-from envs_jax.traffic_state import TrafficState
 
 NAME = "intersection-k"
 MIN_AGENTS, MAX_AGENTS = 2, 8
@@ -75,14 +73,6 @@ class IntersectionAgentsParams(TrafficParams):
     steering_range: Any = (-np.pi / 4, np.pi / 4)  # rad
 
 
-@struct.dataclass
-class IntersectionAgentsState(TrafficState):
-    """:class:`TrafficState` plus the arrival bookkeeping of the agents."""
-
-    arrived: jax.Array  # [K] latched: reached its exit at some step
-    first_arrived: jax.Array  # 0 nobody yet, k + 1 when agent k arrived first
-
-
 class IntersectionAgentsTask(Task):
     """The authors' intersection with ``k`` agents (module docstring)."""
 
@@ -98,6 +88,7 @@ class IntersectionAgentsTask(Task):
         self.num_agents = k
         self.num_slots = k
         self.controlled = tuple(range(k))
+        self.view_order = self.controlled  # slots hold the agents only
         self.vehicles_count = vehicles_count
         arm = np.arange(k) % ARMS
         self.start_lanes = np.array([self.road.lane(f"o{a}", f"ir{a}", 0) for a in arm], np.int32)
@@ -124,7 +115,7 @@ class IntersectionAgentsTask(Task):
         return dict(x=x, y=y, heading=col("heading"), speed=col("speed_limit"), alive=jnp.ones(k, bool),
                     delta=jnp.full(k, params.idm.delta, dtype))
 
-    def outcome(self, prev, state: IntersectionAgentsState, action, params: IntersectionAgentsParams):
+    def outcome(self, prev, state: ArrivalState, action, params: IntersectionAgentsParams):
         """The two-agent intersection's outcome per agent; the arrival flags go back through ``info``
         (:class:`IntersectionAgentsEnv` stores them in the state)."""
         dtype = state.x.dtype
@@ -142,34 +133,19 @@ class IntersectionAgentsTask(Task):
         return reward, cost, terminated, info
 
 
-class IntersectionAgentsEnv(ContinuousTrafficEnv):
+class IntersectionAgentsEnv(ArrivalBookkeeping, nearest_view.NearestViewEnv, ContinuousTrafficEnv):
     """:class:`ContinuousTrafficEnv` with the authors' observation and the arrival flags kept in the state."""
 
     def __init__(self, task: IntersectionAgentsTask, default_params: IntersectionAgentsParams):
         super().__init__(task, default_params)
-        self.obs_config = None
-        self.obs_shape = (self.num_agents, 4 * task.vehicles_count)
-
-    def state_from(self, init: dict, params, key=None):
-        """:meth:`TrafficEnv.state_from` with nobody arrived yet."""
-        _, st = super().state_from(init, params, key)
-        fields = {f.name: getattr(st, f.name) for f in dataclasses.fields(st)}
-        st = IntersectionAgentsState(**fields, arrived=jnp.zeros(self.num_agents, bool),
-                                     first_arrived=jnp.zeros((), jnp.int32))
-        return self.observe(st, params, key), st
-
-    def observe(self, state, params, key=None):
-        return nearest_view.observe(state.x, state.y, state.heading, state.speed, state.alive,
-                                    np.arange(self.num_slots), self.num_agents, self.task.vehicles_count)
-
-    def _step(self, key, state, action, params, record):
-        obs, st, reward, cost, done, info, trajectory = super()._step(key, state, action, params, record)
-        st = st.replace(arrived=info["arrived"], first_arrived=info["first_arrived"])
-        return obs, st, reward, cost, done, info, trajectory
+        self.use_nearest_view()
 
 
 PARAM_KEYS = ("duration", "collision_cost", "start_noise", "collision_reward", "speed_reward", "speed_band_low",
               "speed_band_high", "first_arrival_reward", "second_arrival_reward", "arrival_s", "offroad_terminal")
+# the factory's own keywords besides PARAM_KEYS
+FACTORY_KEYS = ("controlled_vehicles", "vehicles_count", "action_mode", "start_s", "simulation_frequency",
+                "policy_frequency")
 
 
 def make_intersection_agents(name: str = NAME, env_config: dict | None = None, *, controlled_vehicles: int = 2,
@@ -181,13 +157,7 @@ def make_intersection_agents(name: str = NAME, env_config: dict | None = None, *
     (``[K]`` metres along the approach lanes, each in 0..100) and the reward, cost and duration numbers of
     :class:`IntersectionAgentsParams` as keywords. Bad values raise ``ValueError`` naming the key and what is
     allowed."""
-    if env_config is not None:
-        raise ValueError(f"{name}: env_config is not read; give the values as keywords "
-                         f"(controlled_vehicles, vehicles_count, action_mode, start_s, {', '.join(PARAM_KEYS)})")
-    unknown = sorted(set(values) - set(PARAM_KEYS))
-    if unknown:
-        raise ValueError(f"{name}: unknown parameter(s) {unknown}; allowed: controlled_vehicles, vehicles_count, "
-                         f"action_mode, start_s, simulation_frequency, policy_frequency, {', '.join(PARAM_KEYS)}")
+    CV.keywords_only(name, env_config, values, PARAM_KEYS, FACTORY_KEYS)
     k = CV.int_value(name, "controlled_vehicles", controlled_vehicles, MIN_AGENTS, MAX_AGENTS)
     count = CV.int_value(name, "vehicles_count", k if vehicles_count is None else vehicles_count, 2, k)
     sim = CV.int_value(name, "simulation_frequency", simulation_frequency, 1)

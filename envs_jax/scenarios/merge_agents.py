@@ -34,9 +34,6 @@ no traffic this is the two-agent ``[2, 8]`` view, and the whole environment repr
 
 from __future__ import annotations
 
-import dataclasses
-
-import jax
 import jax.numpy as jnp
 import numpy as np
 from flax import struct
@@ -44,10 +41,9 @@ from flax import struct
 from envs_jax import lanes as L
 from envs_jax import nearest_view
 from envs_jax.scenarios import config_values as CV
-from envs_jax.scenarios.arrival import ranked_arrival
+from envs_jax.scenarios.arrival import ArrivalBookkeeping, ArrivalState, ranked_arrival
 from envs_jax.scenarios.merge import build_road
 from envs_jax.traffic_env import Task, TrafficEnv, TrafficParams
-from envs_jax.traffic_state import TrafficState
 
 NAME = "merge-k"
 AGENT_SPACING = 20.0  # metres between successive agents on one lane, centre to centre (four car lengths)
@@ -84,14 +80,6 @@ class MergeAgentsParams(TrafficParams):
     finish_x: float = 350.0
 
 
-@struct.dataclass
-class MergeAgentsState(TrafficState):
-    """:class:`TrafficState` plus the arrival bookkeeping of the controlled agents."""
-
-    arrived: jax.Array  # [K] latched: crossed finish_x at some step
-    first_arrived: jax.Array  # 0 nobody yet, k + 1 when agent k arrived first
-
-
 class MergeAgentsTask(Task):
     """The authors' merge with ``controlled_vehicles`` agents and ``other_vehicles`` IDM vehicles."""
 
@@ -109,6 +97,9 @@ class MergeAgentsTask(Task):
         self.observed_vehicles = observed_vehicles
         self.num_slots = controlled_vehicles + other_vehicles
         self.controlled = tuple(range(controlled_vehicles))
+        # the agents hold slots 0..K-1, so slot order is the view's order (it decides ties)
+        self.view_order = tuple(range(self.num_slots))
+        self.vehicles_count = observed_vehicles
         self.starts = np.concatenate([agent_starts(controlled_vehicles), traffic_starts(other_vehicles)])
 
     def default_params(self) -> MergeAgentsParams:
@@ -124,7 +115,7 @@ class MergeAgentsTask(Task):
                     target_speed=jnp.full(n, START_SPEED, dtype), alive=jnp.ones(n, bool),
                     delta=jnp.full(n, params.idm.delta, dtype))
 
-    def outcome(self, prev, state: MergeAgentsState, action, params: MergeAgentsParams):
+    def outcome(self, prev, state: ArrivalState, action, params: MergeAgentsParams):
         """The two-agent merge's outcome per agent; the new arrival flags go back through ``info``
         (:class:`MergeAgentsEnv` stores them in the state)."""
         idx = np.asarray(self.controlled)
@@ -141,30 +132,12 @@ class MergeAgentsTask(Task):
         return reward, cost, terminated, info
 
 
-class MergeAgentsEnv(TrafficEnv):
+class MergeAgentsEnv(ArrivalBookkeeping, nearest_view.NearestViewEnv, TrafficEnv):
     """:class:`TrafficEnv` with the authors' observation and the arrival flags kept in the state."""
 
     def __init__(self, task: MergeAgentsTask, default_params: MergeAgentsParams):
         super().__init__(task, default_params)
-        self.obs_shape = (self.num_agents, 4 * task.observed_vehicles)
-
-    def state_from(self, init: dict, params, key=None):
-        """:meth:`TrafficEnv.state_from` with nobody arrived yet."""
-        _, st = super().state_from(init, params, key)
-        fields = {f.name: getattr(st, f.name) for f in dataclasses.fields(st)}
-        st = MergeAgentsState(**fields, arrived=jnp.zeros(self.num_agents, bool),
-                              first_arrived=jnp.zeros((), jnp.int32))
-        return self.observe(st, params, key), st
-
-    def observe(self, state, params, key=None):
-        # the agents hold slots 0..K-1, so slot order is the view's order (it decides ties)
-        return nearest_view.observe(state.x, state.y, state.heading, state.speed, state.alive,
-                                    np.arange(self.num_slots), self.num_agents, self.task.observed_vehicles)
-
-    def _step(self, key, state, action, params, record):
-        obs, st, reward, cost, done, info, trajectory = super()._step(key, state, action, params, record)
-        st = st.replace(arrived=info["arrived"], first_arrived=info["first_arrived"])
-        return obs, st, reward, cost, done, info, trajectory
+        self.use_nearest_view()
 
 
 DEFAULTS = dict(controlled_vehicles=2, other_vehicles=0, observed_vehicles=None, simulation_frequency=15,

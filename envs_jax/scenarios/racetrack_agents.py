@@ -102,21 +102,19 @@ class RacetrackAgentsTask(Task):
     outcome = RacetrackTraffic.outcome  # the per-agent racetrack terms (racetrack-v0 and the two-agent scenario)
 
 
-class RacetrackAgentsEnv(ContinuousTrafficEnv):
+class RacetrackAgentsEnv(nearest_view.NearestViewEnv, ContinuousTrafficEnv):
     """:class:`ContinuousTrafficEnv` with the authors' observation (:mod:`envs_jax.nearest_view`)."""
 
     def __init__(self, task: RacetrackAgentsTask, default_params: RacetrackTrafficParams):
         super().__init__(task, default_params)
-        self.obs_config = None
-        self.obs_shape = (self.num_agents, 4 * task.vehicles_count)
-
-    def observe(self, state, params, key=None):
-        return nearest_view.observe(state.x, state.y, state.heading, state.speed, state.alive,
-                                    self.task.view_order, self.num_agents, self.task.vehicles_count)
+        self.use_nearest_view()
 
 
 PARAM_KEYS = ("duration", "collision_cost", "offroad_cost", "collision_reward", "lane_centering_cost",
               "lane_centering_reward", "action_reward", "on_road_reward", "terminate_off_road")
+# the factory's own keywords besides PARAM_KEYS
+FACTORY_KEYS = ("controlled_vehicles", "other_vehicles", "vehicles_count", "action_mode", "simulation_frequency",
+                "policy_frequency", "idm")
 
 
 def make_racetrack_agents(name: str = NAME, env_config: dict | None = None, *, controlled_vehicles: int = 2,
@@ -127,15 +125,7 @@ def make_racetrack_agents(name: str = NAME, env_config: dict | None = None, *, c
     (0..7); ``vehicles_count`` rows per observation (2..K + N, default K); ``action_mode`` lateral (the
     authors'), longitudinal or both; the reward, cost and duration numbers of the params as keywords and ``idm``
     (an IDMParams or a dict of its fields). Bad values raise ``ValueError`` naming the key and what is allowed."""
-    if env_config is not None:
-        raise ValueError(f"{name}: env_config is not read; give the values as keywords "
-                         f"(controlled_vehicles, other_vehicles, vehicles_count, action_mode, "
-                         f"{', '.join(PARAM_KEYS)}, ...)")
-    unknown = sorted(set(values) - set(PARAM_KEYS))
-    if unknown:
-        raise ValueError(f"{name}: unknown parameter(s) {unknown}; allowed: controlled_vehicles, other_vehicles, "
-                         f"vehicles_count, action_mode, simulation_frequency, policy_frequency, idm, "
-                         f"{', '.join(PARAM_KEYS)}")
+    CV.keywords_only(name, env_config, values, PARAM_KEYS, FACTORY_KEYS)
     k = CV.int_value(name, "controlled_vehicles", controlled_vehicles, MIN_AGENTS, MAX_AGENTS)
     n = CV.int_value(name, "other_vehicles", other_vehicles, 0, MAX_TRAFFIC)
     count = CV.int_value(name, "vehicles_count", k if vehicles_count is None else vehicles_count, 2, k + n)

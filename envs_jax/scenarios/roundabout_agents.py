@@ -180,21 +180,19 @@ class RoundaboutAgentsTask(Task):
         return reward, cost, crashed | arrived, info
 
 
-class RoundaboutAgentsEnv(TrafficEnv):
+class RoundaboutAgentsEnv(nearest_view.NearestViewEnv, TrafficEnv):
     """:class:`TrafficEnv` with the authors' observation (:mod:`envs_jax.nearest_view`)."""
 
     def __init__(self, task: RoundaboutAgentsTask, default_params: RoundaboutAgentsParams):
         super().__init__(task, default_params)
-        self.obs_config = None
-        self.obs_shape = (self.num_agents, 4 * task.vehicles_count)
-
-    def observe(self, state, params, key=None):
-        return nearest_view.observe(state.x, state.y, state.heading, state.speed, state.alive,
-                                    self.task.view_order, self.num_agents, self.task.vehicles_count)
+        self.use_nearest_view()
 
 
 PARAM_KEYS = ("duration", "collision_cost", "collision_reward", "speed_reward", "speed_band_low", "speed_band_high",
               "arrival_reward", "arrival_s")
+# the factory's own keywords besides PARAM_KEYS
+FACTORY_KEYS = ("controlled_vehicles", "other_vehicles", "vehicles_count", "simulation_frequency", "policy_frequency",
+                "target_speeds", "idm")
 
 
 def make_roundabout_agents(name: str = NAME, env_config: dict | None = None, *, controlled_vehicles: int = 2,
@@ -205,14 +203,7 @@ def make_roundabout_agents(name: str = NAME, env_config: dict | None = None, *, 
     (0..8); ``vehicles_count`` rows per observation (2..K + N, default K); the reward, cost and duration
     numbers of :class:`RoundaboutAgentsParams` as keywords, ``target_speeds`` (an increasing list) and ``idm``
     (an IDMParams or a dict of its fields). Bad values raise ``ValueError`` naming the key and what is allowed."""
-    if env_config is not None:
-        raise ValueError(f"{name}: env_config is not read; give the values as keywords "
-                         f"(controlled_vehicles, other_vehicles, vehicles_count, {', '.join(PARAM_KEYS)}, ...)")
-    unknown = sorted(set(values) - set(PARAM_KEYS))
-    if unknown:
-        raise ValueError(f"{name}: unknown parameter(s) {unknown}; allowed: controlled_vehicles, other_vehicles, "
-                         f"vehicles_count, simulation_frequency, policy_frequency, target_speeds, idm, "
-                         f"{', '.join(PARAM_KEYS)}")
+    CV.keywords_only(name, env_config, values, PARAM_KEYS, FACTORY_KEYS)
     k = CV.int_value(name, "controlled_vehicles", controlled_vehicles, MIN_AGENTS, MAX_AGENTS)
     n = CV.int_value(name, "other_vehicles", other_vehicles, 0, MAX_TRAFFIC)
     count = CV.int_value(name, "vehicles_count", k if vehicles_count is None else vehicles_count, 2, k + n)
