@@ -161,8 +161,8 @@ def test_random_episode_gif_has_one_frame_per_stride_and_replays_eagerly(tmp_pat
 def test_cli_errors_exit_2(capsys, tmp_path):
     assert render.main(["--scenario", "highway-v9"]) == 2
     assert "error: unknown scenario 'highway-v9'; choose a training scenario" in capsys.readouterr().err
-    assert render.main(["--scenario", "intersection", "--agents", "3"]) == 2
-    assert "intersection has exactly 2 agents; got --agents 3" in capsys.readouterr().err
+    assert render.main(["--scenario", "merge-cavs", "--agents", "5"]) == 2
+    assert "--agents for merge-cavs must be 3..4" in capsys.readouterr().err
     assert render.main(["--scenario", "merge-v0", "--agents", "9"]) == 2
     assert "--agents for merge-v0 must be 2..8" in capsys.readouterr().err
     assert render.main(["--checkpoint", str(tmp_path), "--agents", "3"]) == 2

@@ -151,8 +151,7 @@ def scenario_env(name: str, agents: int | None = None):
     if name in SCENARIOS:
         default, lo, hi = SCENARIO_AGENTS[name]
         if agents is not None and not lo <= agents <= hi:
-            raise ValueError(f"--agents for {name} must be {lo}..{hi}" if lo < hi else
-                             f"{name} has exactly {lo} agents; got --agents {agents}")
+            raise ValueError(f"--agents for {name} must be {lo}..{hi}, got {agents}")
         env, _, params = make_env(name, agents)
         return env, params
     if name in envs_jax.available_tasks():
