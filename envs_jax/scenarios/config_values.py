@@ -240,3 +240,16 @@ def keywords_only(name, env_config, values: dict, param_keys, other_keys) -> Non
     unknown = sorted(set(values) - set(param_keys))
     if unknown:
         raise ValueError(f"{name}: unknown parameter(s) {unknown}; allowed: {allowed}")
+
+
+def agents_layout(name, controlled_vehicles, other_vehicles, vehicles_count, simulation_frequency, policy_frequency,
+                  min_agents: int, max_agents: int, max_traffic: int) -> tuple[int, int, int, int, int]:
+    """``(K, N, vehicles_count, simulation_frequency, policy_frequency)`` of an authors' K-agent task, each checked:
+    K agents in ``min_agents..max_agents``, N traffic vehicles in ``0..max_traffic``, 2..K + N observation rows
+    (default K), ``0 < policy_frequency <= simulation_frequency``."""
+    k = int_value(name, "controlled_vehicles", controlled_vehicles, min_agents, max_agents)
+    n = int_value(name, "other_vehicles", other_vehicles, 0, max_traffic)
+    count = int_value(name, "vehicles_count", k if vehicles_count is None else vehicles_count, 2, k + n)
+    sim = int_value(name, "simulation_frequency", simulation_frequency, 1)
+    pol = int_value(name, "policy_frequency", policy_frequency, 1, sim)
+    return k, n, count, sim, pol

@@ -158,10 +158,8 @@ def make_intersection_agents(name: str = NAME, env_config: dict | None = None, *
     :class:`IntersectionAgentsParams` as keywords. Bad values raise ``ValueError`` naming the key and what is
     allowed."""
     CV.keywords_only(name, env_config, values, PARAM_KEYS, FACTORY_KEYS)
-    k = CV.int_value(name, "controlled_vehicles", controlled_vehicles, MIN_AGENTS, MAX_AGENTS)
-    count = CV.int_value(name, "vehicles_count", k if vehicles_count is None else vehicles_count, 2, k)
-    sim = CV.int_value(name, "simulation_frequency", simulation_frequency, 1)
-    pol = CV.int_value(name, "policy_frequency", policy_frequency, 1, sim)
+    k, _, count, sim, pol = CV.agents_layout(name, controlled_vehicles, 0, vehicles_count, simulation_frequency,
+                                             policy_frequency, MIN_AGENTS, MAX_AGENTS, 0)  # no traffic here
     if action_mode not in ACTION_MODES:
         raise ValueError(f"{name}: action_mode must be one of {', '.join(ACTION_MODES)}, got {action_mode!r}")
     lon, lat = action_flags(action_mode)

@@ -126,11 +126,9 @@ def make_racetrack_agents(name: str = NAME, env_config: dict | None = None, *, c
     authors'), longitudinal or both; the reward, cost and duration numbers of the params as keywords and ``idm``
     (an IDMParams or a dict of its fields). Bad values raise ``ValueError`` naming the key and what is allowed."""
     CV.keywords_only(name, env_config, values, PARAM_KEYS, FACTORY_KEYS)
-    k = CV.int_value(name, "controlled_vehicles", controlled_vehicles, MIN_AGENTS, MAX_AGENTS)
-    n = CV.int_value(name, "other_vehicles", other_vehicles, 0, MAX_TRAFFIC)
-    count = CV.int_value(name, "vehicles_count", k if vehicles_count is None else vehicles_count, 2, k + n)
-    sim = CV.int_value(name, "simulation_frequency", simulation_frequency, 1)
-    pol = CV.int_value(name, "policy_frequency", policy_frequency, 1, sim)
+    k, n, count, sim, pol = CV.agents_layout(name, controlled_vehicles, other_vehicles, vehicles_count,
+                                             simulation_frequency, policy_frequency, MIN_AGENTS, MAX_AGENTS,
+                                             MAX_TRAFFIC)
     if action_mode not in ACTION_MODES:
         raise ValueError(f"{name}: action_mode must be one of {', '.join(ACTION_MODES)}, got {action_mode!r}")
     lon, lat = action_flags(action_mode)

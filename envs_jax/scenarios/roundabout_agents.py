@@ -204,11 +204,9 @@ def make_roundabout_agents(name: str = NAME, env_config: dict | None = None, *, 
     numbers of :class:`RoundaboutAgentsParams` as keywords, ``target_speeds`` (an increasing list) and ``idm``
     (an IDMParams or a dict of its fields). Bad values raise ``ValueError`` naming the key and what is allowed."""
     CV.keywords_only(name, env_config, values, PARAM_KEYS, FACTORY_KEYS)
-    k = CV.int_value(name, "controlled_vehicles", controlled_vehicles, MIN_AGENTS, MAX_AGENTS)
-    n = CV.int_value(name, "other_vehicles", other_vehicles, 0, MAX_TRAFFIC)
-    count = CV.int_value(name, "vehicles_count", k if vehicles_count is None else vehicles_count, 2, k + n)
-    sim = CV.int_value(name, "simulation_frequency", simulation_frequency, 1)
-    pol = CV.int_value(name, "policy_frequency", policy_frequency, 1, sim)
+    k, n, count, sim, pol = CV.agents_layout(name, controlled_vehicles, other_vehicles, vehicles_count,
+                                             simulation_frequency, policy_frequency, MIN_AGENTS, MAX_AGENTS,
+                                             MAX_TRAFFIC)
     task = RoundaboutAgentsTask(k, n, count, sim, pol)
     params = task.default_params()
     fields = {key: CV.number_value(name, key, v, positive=key == "duration") for key, v in values.items()}
