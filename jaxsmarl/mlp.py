@@ -57,14 +57,15 @@ class MLP(nn.Module):
     @nn.compact
     def __call__(self, x):
         relu_gain = math.sqrt(2.0)
+        dtype = jnp.zeros(()).dtype  # the default float: float32, or float64 under jax_enable_x64 (parity runs)
         if self.feature_norm:
-            x = nn.LayerNorm(epsilon=1e-5, name=_norm_after(-1, True))(x)
+            x = nn.LayerNorm(epsilon=1e-5, param_dtype=dtype, name=_norm_after(-1, True))(x)
         for j in range(1 + self.layer_n):
-            x = nn.Dense(self.hidden, kernel_init=orthogonal_init(relu_gain),
-                         bias_init=nn.initializers.zeros, name=dense_name(j))(x)
-            x = nn.LayerNorm(epsilon=1e-5, name=_norm_after(j, self.feature_norm))(nn.relu(x))
-        return nn.Dense(self.out_dim, kernel_init=orthogonal_init(self.out_gain),
-                        bias_init=nn.initializers.zeros, name=dense_name(1 + self.layer_n))(x)
+            x = nn.Dense(self.hidden, kernel_init=orthogonal_init(relu_gain), bias_init=nn.initializers.zeros,
+                         param_dtype=dtype, name=dense_name(j))(x)
+            x = nn.LayerNorm(epsilon=1e-5, param_dtype=dtype, name=_norm_after(j, self.feature_norm))(nn.relu(x))
+        return nn.Dense(self.out_dim, kernel_init=orthogonal_init(self.out_gain), bias_init=nn.initializers.zeros,
+                        param_dtype=dtype, name=dense_name(1 + self.layer_n))(x)
 
 
 def _normalize_columns(x, eps: float = 1e-5):

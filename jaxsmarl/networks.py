@@ -53,7 +53,8 @@ class Dense(nn.Module):
         fan_in = x.shape[-1]
         if self.init_scheme == "torch":
             bound = 1.0 / math.sqrt(fan_in)
-            k_init = lambda key, shape, dtype=jnp.float32: jax.random.uniform(key, shape, dtype, -bound, bound)
+            # the default float: float32, or float64 under jax_enable_x64 (parity runs)
+            k_init = lambda key, shape: jax.random.uniform(key, shape, jnp.zeros(()).dtype, -bound, bound)
             b_init = k_init
         else:
             k_init, b_init = nn.initializers.lecun_normal(), nn.initializers.zeros

@@ -1,9 +1,14 @@
 """Short training runs of MAPPO-L, MACPO and the MADDPG family whose outputs are pinned in
 ``tests/data/algo_reference.npz``, in both network layouts (docs/design.md, network layouts).
 
-``python3 -m tests.algo_reference`` writes the file; :mod:`tests.test_algo_reference` compares today's outputs to it
-bit for bit, so that restructuring the algorithms keeps their results. Every run sets all of its configuration
-(``CONFIGS``, stored beside the outputs), so that a changed default does not change a pinned run.
+``python3 -m tests.algo_reference`` writes the file; :mod:`tests.test_algo_reference` compares today's outputs to it,
+so that restructuring the algorithms keeps their results. Every run sets all of its configuration (``CONFIGS``,
+stored beside the outputs), so that a changed default does not change a pinned run.
+
+The runs use 64-bit floats (networks included): XLA:CPU's float32 code differs in the last bits between processors
+(an Intel Xeon and an AMD EPYC disagree from the first rollout on), and the MACPO runs amplify such differences
+into other episode ends within three updates; in float64 the same differences stay far below the comparison's
+tolerance (docs/design.md, pinned runs).
 """
 
 from __future__ import annotations
@@ -73,17 +78,18 @@ def _leaves(tree, prefix: str, every: int = 3) -> dict:
 
 
 def short_run(name: str, layout_name: str) -> dict:
-    """One seed of run ``name`` in layout ``layout_name``: every episode record, the learner's metrics and some
-    parameter leaves of the final state."""
+    """One seed of run ``name`` in layout ``layout_name``, in 64-bit floats: every episode record, the learner's
+    metrics and some parameter leaves of the final state."""
     from train.build import make_train
     from train.config import load_config
     from train.trainer import seed_keys
 
     scenario, algo, overrides = CONFIGS[name]
     cfg = load_config(scenario, algo, json.loads(json.dumps(overrides)))
-    with layout(layout_name):
-        trainer = make_train(cfg)
-    state, metrics = jax.jit(trainer.train)(seed_keys(cfg)[0])
+    with jax.enable_x64(True):
+        with layout(layout_name):
+            trainer = make_train(cfg)
+        state, metrics = jax.jit(trainer.train)(seed_keys(cfg)[0])
     out = {f"episode_{k}": np.asarray(v) for k, v in metrics["episode"].items()}
     out.update({f"update_{k}": np.asarray(v) for k, v in metrics["update"].items()})
     agent = state.agent
