@@ -1,6 +1,7 @@
 """Benchmark: hierarchies of K agents. (1) The batched equilibrium solver against a per-sample Python loop for
 vertical chains of K = 2..5 agents (5^K joint actions); (2) CSQ and MAPPO-L training speed on highway-v0 with
-K = 2, 3, 4 controlled vehicles (CSQ's critics over 5^K joint actions).
+K = 2, 3, 4 controlled vehicles (CSQ's critics over 5^K joint actions); (3) CSQ's target equilibrium per
+hierarchy at K = 4: the critic rows backward induction needs against every critic on the whole grid.
 
 (1) Both sides get the value tensors precomputed (no network). The loop is backward induction by exhaustive
 recursion over every prefix of actions, per sample, on nested Python lists (the fastest way to index them in
@@ -13,6 +14,10 @@ after the warm-up), compiled ahead of time (reported apart), then the training c
 ``python -m train``. Steps are environment steps; after the warm-up every step also makes one gradient update.
 MAPPO-L: one seed, the shipped highway configuration (64 envs x 32 steps, then its epochs of minibatch updates),
 one update per chunk, the chunks after the first timed.
+
+(3) CSQ's default critics (64-64-64) on 25 observation features, batch 64 (one update's next states), random
+parameters; ``solve_equilibrium`` (what the TD targets call) and ``equilibrium(values)`` jitted and timed side by
+side per repeat, their actions checked equal; medians.
 
 Run: python benchmarks/hierarchy_bench.py  (writes benchmarks/results/hierarchy.json)
      python benchmarks/hierarchy_bench.py --train-steps 600 --solver-only
@@ -146,6 +151,36 @@ def bench_train(k, steps, warmup, chunk_steps, algo="csq"):
             "load_avg_1m": [round(load0, 2), round(os.getloadavg()[0], 2)]}
 
 
+def bench_targets(k: int = 4, batch: int = 64, obs_dim: int = 25, repeats: int = 15, inner: int = 5) -> list:
+    """(3): the target equilibrium from the rows backward induction needs vs the full grid, per hierarchy."""
+    from jaxsmarl.algos.csq import CSQAgent
+    from jaxsmarl.algos.csq_config import CSQConfig
+
+    out = []
+    for name, h in (("chain", "|".join(map(str, range(k)))),
+                    ("horizontal", ",".join(map(str, range((k + 1) // 2))) + "|"
+                     + ",".join(map(str, range((k + 1) // 2, k)))),
+                    ("flat", ",".join(map(str, range(k))))):
+        agent = CSQAgent(CSQConfig(num_actions=(A,) * k, obs_dim=obs_dim, cost_threshold=(0.5,) * k,
+                                   eps_start=(0.0,) * k, eps_min=(0.0,) * k, hierarchy=h))
+        params = jax.jit(agent.init)(jax.random.PRNGKey(0)).params
+        obs = jax.random.normal(jax.random.PRNGKey(1), (batch, k, obs_dim))
+        needed = jax.jit(agent.solve_equilibrium)
+        full = jax.jit(lambda p, o: agent.equilibrium(agent.values(p, o)))
+        np.testing.assert_array_equal(needed(params, obs), full(params, obs))
+        times = {"needed": [], "full": []}
+        for _ in range(repeats):
+            for key, fn in (("needed", needed), ("full", full)):
+                t = time.perf_counter()
+                for _ in range(inner):
+                    fn(params, obs).block_until_ready()
+                times[key].append((time.perf_counter() - t) / inner)
+        med = {key: statistics.median(v) for key, v in times.items()}
+        out.append({"agents": k, "hierarchy": h, "shape": name, "batch": batch, "needed_s": med["needed"],
+                    "full_s": med["full"], "ratio": med["full"] / med["needed"]})
+    return out
+
+
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--agents", type=int, nargs="+", default=[2, 3, 4, 5], help="K for the solver")
@@ -156,9 +191,17 @@ def main(argv=None):
     p.add_argument("--ppo-updates", type=int, default=4,
                    help="MAPPO-L updates per training run (64 envs x 32 steps each; the first untimed)")
     p.add_argument("--solver-only", action="store_true")
+    p.add_argument("--targets-only", action="store_true", help="only (3), CSQ's target equilibrium per hierarchy")
     p.add_argument("--out", default=OUT)
     args = p.parse_args(argv)
 
+    targets = bench_targets()
+    print(f"{'hierarchy':>12} {'rows needed (ms)':>17} {'full grid (ms)':>15} {'full/needed':>12}")
+    for r in targets:
+        print(f"{r['hierarchy']:>12} {r['needed_s'] * 1e3:>17.2f} {r['full_s'] * 1e3:>15.2f} {r['ratio']:>12.2f}")
+    if args.targets_only:
+        print(json.dumps(targets))
+        return
     solver = [bench_solver(k, args.batch, repeats=5 if k >= 5 else 9, inner=20) for k in args.agents]
     print(f"{'K':>2} {'joint':>6} {'batch':>6} {'loop (ms)':>11} {'jax (ms)':>10} {'loop/jax':>9}")
     for r in solver:
@@ -187,7 +230,7 @@ def main(argv=None):
             "load_average_1min": os.getloadavg()[0]}
     os.makedirs(os.path.dirname(args.out), exist_ok=True)
     with open(args.out, "w") as f:
-        json.dump({"meta": meta, "solver": solver, "train": train}, f, indent=2)
+        json.dump({"meta": meta, "targets": targets, "solver": solver, "train": train}, f, indent=2)
     print(f"wrote {args.out}")
 
 

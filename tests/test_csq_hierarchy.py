@@ -77,9 +77,13 @@ def test_lower_levels_respond_to_the_executed_actions_above():
         assert tuple(a[b, :2]) == want
 
 
-@pytest.mark.parametrize("k, hierarchy, infeasible", [(3, "2|0|1", "min_cost"), (4, "3|1|0|2", "argmax")])
-def test_chain_targets_evaluate_only_what_backward_induction_needs(k, hierarchy, infeasible):
-    """The target equilibrium of a chain from the critic rows backward induction needs == the full grid's."""
+@pytest.mark.parametrize("k, hierarchy, infeasible", [
+    (3, "2|0|1", "min_cost"), (4, "3|1|0|2", "argmax"),  # chains
+    (3, "0,1|2", "min_cost"), (4, "0,1|2,3", "min_cost"), (4, "2|0,3|1", "argmax"), (4, "3|0,1,2", "min_cost"),
+])
+def test_targets_evaluate_only_what_backward_induction_needs(k, hierarchy, infeasible):
+    """The target equilibrium of a hierarchy of several levels (chains, levels of several agents) from the critic
+    rows backward induction needs == the full grid's."""
     agent = _agent(k, hierarchy, infeasible=infeasible)
     state = _critics(k, 8, 0)[0] if k == 3 else jax.jit(agent.init)(jax.random.PRNGKey(0))
     obs = 2.0 * jax.random.normal(jax.random.PRNGKey(7), (200, k, D))

@@ -42,7 +42,7 @@ import optax
 from jaxsmarl import bootstrap, networks
 from jaxsmarl.algos.csq_config import CSQConfig
 from jaxsmarl.exploration import linear_decay
-from jaxsmarl.hierarchy import agent_order, is_chain
+from jaxsmarl.hierarchy import agent_order
 from jaxsmarl.stackelberg import stackelberg_equilibrium
 from jaxsmarl.transition import MaskedTransition, Transition
 
@@ -131,13 +131,13 @@ class CSQAgent:
         """p14 at ``obs`` ``[..., 2, D]`` evaluating only what backward induction needs (two-level Stackelberg rule):
         the follower's Q2/G2 on all A1*A2 pairs, then the leader's Q1/G1 only at the A1 pairs (a1, BR(a1)). This is
         40% fewer critic rows than :meth:`equilibrium` of :meth:`values` and gives the same actions (up to
-        float rounding of exact ties). Other chains use :meth:`_solve_chain`; other rules and hierarchies with a
-        level of several agents the full grid."""
+        float rounding of exact ties). Other hierarchies of several levels use :meth:`_solve_levels`; the authors'
+        rule and a single level (no hierarchy: every agent needs the whole grid) use the full grid."""
         c = self.config
-        if c.leader_rule != "stackelberg" or not is_chain(c.levels):
+        if c.leader_rule != "stackelberg" or len(c.levels) == 1:
             return self.equilibrium(self.values(params, obs))
         if c.n_agents != 2 or c.levels != ((0,), (1,)):
-            return self._solve_chain(params, obs)
+            return self._solve_levels(params, obs)
         rule = dict(infeasible=c.infeasible, leader_rule="stackelberg", tie_break=c.resolved_tie_break)
         a1_n = c.num_actions[0]
         follower = jax.tree.map(lambda x: x[1:], params)
@@ -152,11 +152,12 @@ class CSQAgent:
         a2 = jnp.take_along_axis(br, a1[..., None], axis=-1)[..., 0]
         return jnp.stack([a1, a2], axis=-1)
 
-    def _solve_chain(self, params, obs: jax.Array) -> jax.Array:
-        """The chain's equilibrium at ``obs`` ``[..., n, D]`` evaluating only what backward induction needs: the
-        last agent's critics on the whole grid, then the agent at decision position j only at the ``A^(j+1)``
-        joint actions (its prefix, its action, the later agents' replies). For 4 agents that is 1560 critic rows
-        per state instead of 5000, with the same actions (up to float rounding of exact ties)."""
+    def _solve_levels(self, params, obs: jax.Array) -> jax.Array:
+        """The hierarchy's equilibrium at ``obs`` ``[..., n, D]`` evaluating only what backward induction needs:
+        the last level's critics on the whole grid, then each agent of an earlier level only at the joint actions
+        of its prefix (the levels above it), its own level and the later levels' replies. A chain of 4 agents
+        needs 1560 critic rows per state instead of 5000, two leaders over two followers 2600; the actions are
+        the full grid's (up to float rounding of exact ties)."""
         c = self.config
         k = c.n_agents
         order = agent_order(c.levels)
@@ -165,26 +166,42 @@ class CSQAgent:
         rule = dict(infeasible=c.infeasible, leader_rule="stackelberg", tie_break=c.resolved_tie_break)
         batch, d = obs.shape[:-2], obs.shape[-1]
         nb = len(batch)
-        take = lambda a: jax.tree.map(lambda x: x[a : a + 1], params)
-        last = order[-1]
-        v = networks.joint_values(take(last), obs[..., last : last + 1, :], c.num_actions)
-        v = jnp.reshape(v, batch + (2,) + tuple(c.num_actions))
-        v = jnp.transpose(v, tuple(range(nb + 1)) + tuple(nb + 1 + a for a in order))  # actions in decision order
-        v = jnp.reshape(v, batch + (2, math.prod(sizes[:-1]), sizes[-1]))
-        reply = stackelberg_equilibrium([v[..., Q, :, :]], [v[..., G, :, :]], [c.cost_threshold[last]], **rule)
-        cont = reply  # [..., prod(sizes[:j]), k - j]: positions j.. for every prefix of positions < j
-        for j in range(k - 2, -1, -1):
-            agent, m = order[j], math.prod(sizes[: j + 1])
-            digits = np.stack(np.unravel_index(np.arange(m), sizes[: j + 1]), -1).astype(np.int32)  # [m, j+1]
+
+        def take(level):  # the critics of a level's agents (a slice for one agent: the chain's ops as before)
+            idx = slice(level[0], level[0] + 1) if len(level) == 1 else np.asarray(level)
+            return jax.tree.map(lambda x: x[idx], params), obs[..., idx, :]
+
+        def solve(vals, level):  # vals [..., P, A_level..., s, 2] -> the level's joint action [..., P, s]
+            s = len(level)
+            one = None if s == 1 else (tuple(range(s)),)  # one level: the agents play an equilibrium
+            return stackelberg_equilibrium([vals[..., i, Q] for i in range(s)], [vals[..., i, G] for i in range(s)],
+                                           [c.cost_threshold[a] for a in level], hierarchy=one, **rule)
+
+        last = c.levels[-1]
+        p = k - len(last)  # decision position of the last level's first agent
+        net, o = take(last)
+        v = networks.joint_values(net, o, c.num_actions)  # [..., s, 2, A (agent order)]
+        v = jnp.transpose(v, tuple(range(nb + 2)) + tuple(nb + 2 + a for a in order))  # actions in decision order
+        v = jnp.reshape(v, batch + (len(last), 2, math.prod(sizes[:p])) + tuple(sizes[p:]))
+        v = jnp.moveaxis(jnp.moveaxis(v, nb, -1), nb, -1)  # [..., P, A_last..., s, 2]
+        cont = solve(v, last)  # [..., prod(sizes[:j]), k - j]: positions j.. for every prefix of positions < j
+        end = p
+        for level in reversed(c.levels[:-1]):
+            j = end - len(level)  # decision position of this level's first agent
+            m, n_level = math.prod(sizes[:end]), math.prod(sizes[j:end])
+            digits = np.stack(np.unravel_index(np.arange(m), sizes[:end]), -1).astype(np.int32)  # [m, end]
             joint = jnp.concatenate([jnp.broadcast_to(digits, batch + digits.shape), cont], axis=-1)  # decision order
             joint = joint[..., to_agent]  # agent order
-            o = jnp.broadcast_to(obs[..., None, agent : agent + 1, :], batch + (m, 1, d))
-            vals = networks.values_at(take(agent), o, joint, c.num_actions)[..., 0, :]  # [..., m, 2]
-            vals = jnp.reshape(vals, batch + (m // sizes[j], sizes[j], 2))
-            r = stackelberg_equilibrium([vals[..., Q]], [vals[..., G]], [c.cost_threshold[agent]], **rule)[..., 0]
-            chosen = jnp.arange(m // sizes[j], dtype=jnp.int32) * sizes[j] + r  # flat prefix incl. this reply
+            net, o = take(level)
+            o = jnp.broadcast_to(o[..., None, :, :], batch + (m, len(level), d))
+            vals = networks.values_at(net, o, joint, c.num_actions)  # [..., m, s, 2]
+            vals = jnp.reshape(vals, batch + (m // n_level,) + tuple(sizes[j:end]) + vals.shape[-2:])
+            r = solve(vals, level)  # [..., m // n_level, s]
+            flat = jnp.ravel_multi_index(tuple(r[..., i] for i in range(len(level))), sizes[j:end], mode="clip")
+            chosen = jnp.arange(m // n_level, dtype=jnp.int32) * n_level + flat  # flat prefix incl. this level
             rest = jnp.take_along_axis(cont, chosen[..., None], axis=-2)
-            cont = jnp.concatenate([r[..., None], rest], axis=-1)
+            cont = jnp.concatenate([r, rest], axis=-1)
+            end = j
         return cont[..., 0, :][..., to_agent]
 
     def policy(self, values: jax.Array, key: jax.Array, eps: jax.Array) -> jax.Array:
