@@ -131,19 +131,6 @@ def test_bad_values_are_refused():
 
 
 # ------------------------------------------------------------------------------------------ training wiring
-def test_training_builds_intersection_k_for_three_agents_or_more():
-    from train.config import validate
-    from train.trainer import make_env
-
-    env, wrapped, _ = make_env("intersection", 4)
-    assert env.name == "intersection-k" and env.num_agents == 4 and wrapped.obs_shape == (4, 16)
-    env, _, _ = make_env("intersection", 2)
-    assert isinstance(env, envs_jax.DrivingEnv) and env.name == "intersection"
-    assert validate({"scenario": "intersection", "algo": "cs-maddpg", "agents": 8})["agents"] == 8
-    with pytest.raises(ValueError, match="'agents' for scenario 'intersection' must be 2..8"):
-        validate({"scenario": "intersection", "algo": "cs-maddpg", "agents": 9})
-
-
 @pytest.mark.slow
 def test_cli_trains_intersection_with_four_agents(tmp_path, capsys):
     import json

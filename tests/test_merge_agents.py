@@ -261,21 +261,6 @@ def test_jit_vmap_rollout(k, others):
     np.testing.assert_array_equal(ep_arrived, arrived)  # latched flags reported to the training metrics
 
 
-def test_training_builds_merge_k():
-    """``--scenario merge --agents K``: K >= 3 builds merge-k behind the traffic wrapper, K = 2 the two-agent env."""
-    from train.config import validate
-    from train.trainer import make_env
-
-    env, wrapped, params = make_env("merge", 3)
-    assert env.name == "merge-k" and env.num_agents == 3 and isinstance(wrapped, TrafficAutoResetWrapper)
-    assert wrapped.obs_shape == (3, 12) and params is env.default_params
-    for agents in (None, 2):
-        env, wrapped, _ = make_env("merge", agents)
-        assert isinstance(env, envs_jax.DrivingEnv) and isinstance(wrapped, envs_jax.AutoResetWrapper)
-    with pytest.raises(ValueError, match="2..8"):
-        validate({"scenario": "merge", "algo": "csq", "agents": 9})
-
-
 @pytest.mark.slow
 def test_cli_trains_merge_with_three_agents(tmp_path, capsys):
     """``python -m train --scenario merge --agents 3``: a short CSQ run writes per-episode rows whose arrivals come

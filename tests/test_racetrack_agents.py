@@ -125,19 +125,6 @@ def test_bad_values_are_refused():
 
 
 # ------------------------------------------------------------------------------------------ training wiring
-def test_training_builds_racetrack_k_for_three_agents_or_more():
-    from train.config import validate
-    from train.trainer import make_env
-
-    env, wrapped, _ = make_env("racetrack", 3)
-    assert env.name == "racetrack-k" and env.num_agents == 3 and wrapped.obs_shape == (3, 12)
-    env, _, _ = make_env("racetrack", 2)
-    assert isinstance(env, envs_jax.DrivingEnv) and env.name == "racetrack"
-    assert validate({"scenario": "racetrack", "algo": "cs-maddpg", "agents": 8})["agents"] == 8
-    with pytest.raises(ValueError, match="'agents' for scenario 'racetrack' must be 2..8"):
-        validate({"scenario": "racetrack", "algo": "cs-maddpg", "agents": 9})
-
-
 @pytest.mark.slow
 @pytest.mark.parametrize("algo, hierarchy", [("cs-maddpg", "0|1|2"), ("mappo-l", None)])
 def test_cli_trains_racetrack_with_three_agents(tmp_path, capsys, algo, hierarchy):

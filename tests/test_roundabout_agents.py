@@ -197,20 +197,6 @@ def test_random_rollout_under_jit_and_vmap(k, n):
 
 
 # ------------------------------------------------------------------------------------------ training wiring
-def test_training_builds_roundabout_k_for_three_agents_or_more():
-    from train.config import validate
-    from train.trainer import make_env
-
-    env, wrapped, _ = make_env("roundabout", 3)
-    assert env.name == "roundabout-k" and env.num_agents == 3 and wrapped.obs_shape == (3, 12)
-    for agents in (None, 2):
-        env, _, _ = make_env("roundabout", agents)
-        assert isinstance(env, envs_jax.DrivingEnv) and env.name == "roundabout"
-    assert validate({"scenario": "roundabout", "agents": 4})["agents"] == 4
-    with pytest.raises(ValueError, match="'agents' for scenario 'roundabout' must be 2..8"):
-        validate({"scenario": "roundabout", "agents": 9})
-
-
 @pytest.mark.slow
 def test_cli_trains_roundabout_with_three_agents(tmp_path, capsys):
     import json
