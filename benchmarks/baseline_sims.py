@@ -26,12 +26,23 @@ HIGHJAX_TASKS = {"highway-v0": "highjax-v0"}
 
 
 def _space(space) -> dict:
+    if hasattr(space, "spaces"):  # one space per controlled vehicle (highway-env's multi-agent tasks): alike
+        return _space(space.spaces[0])
     if hasattr(space, "n"):
         return {"actions": int(space.n)}
     return {"action_shape": list(space.shape)}
 
 
+def _obs_shape(space) -> list[int]:
+    """An observation space's shape; a tuple of one space per controlled vehicle as ``[K, ...]``."""
+    if hasattr(space, "spaces"):
+        return [len(space.spaces)] + list(space.spaces[0].shape)
+    return list(space.shape)
+
+
 def _random_action(space, rng, batch=None):
+    if hasattr(space, "spaces"):
+        return tuple(_random_action(s, rng, batch) for s in space.spaces)
     if hasattr(space, "n"):
         return rng.integers(0, space.n, batch) if batch is not None else int(rng.integers(0, space.n))
     shape = space.shape if batch is None else (batch,) + tuple(space.shape)
@@ -55,7 +66,7 @@ def describe_highway_env(task: str) -> dict:
     cfg = env.unwrapped.config
     return {"vehicles": len(env.unwrapped.road.vehicles), "controlled": len(env.unwrapped.controlled_vehicles),
             "simulation_frequency": cfg["simulation_frequency"], "policy_frequency": cfg["policy_frequency"],
-            "duration": cfg.get("duration"), "obs_shape": list(env.observation_space.shape),
+            "duration": cfg.get("duration"), "obs_shape": _obs_shape(env.observation_space),
             **_space(env.action_space)}
 
 
@@ -97,9 +108,10 @@ def describe_envpool(task: str) -> dict:
     debug = env.debug_states()[0]
     cfg = env.spec.config
     players = int(getattr(cfg, "max_num_players", 1))
+    shape = list(env.observation_space.shape)
     return {"vehicles": len(debug.vehicles), "controlled": players,
             "simulation_frequency": int(debug.simulation_frequency), "policy_frequency": int(debug.policy_frequency),
-            "duration": getattr(cfg, "duration", None), "obs_shape": list(env.observation_space.shape),
+            "duration": getattr(cfg, "duration", None), "obs_shape": [players] + shape if players > 1 else shape,
             **_space(env.action_space)}
 
 
@@ -114,6 +126,7 @@ def measure_envpool(task: str, num_envs: int, batch_size: int, seconds: float, r
     env = envpool.make_gymnasium(task, num_envs=num_envs, batch_size=batch_size, num_threads=threads, seed=0,
                                  **config)
     space = env.action_space
+    players = int(getattr(env.spec.config, "max_num_players", 1))  # multi-player tasks: one action per player
     rng = np.random.default_rng(0)
     sync = batch_size == num_envs
     if sync:
@@ -125,10 +138,10 @@ def measure_envpool(task: str, num_envs: int, batch_size: int, seconds: float, r
         steps, t0 = 0, time.perf_counter()
         while time.perf_counter() - t0 < seconds / repeats or steps == 0:
             if sync:
-                _, _, _, _, info = env.step(_random_action(space, rng, num_envs))
+                _, _, _, _, info = env.step(_random_action(space, rng, num_envs * players))
             else:
                 _, _, _, _, info = env.recv()
-                env.send(_random_action(space, rng, batch_size), info["env_id"])
+                env.send(_random_action(space, rng, batch_size * players), info["env_id"])
             steps += int(np.count_nonzero(np.asarray(info["elapsed_step"]) > 0))
         rates.append(steps / (time.perf_counter() - t0))
     env.close()

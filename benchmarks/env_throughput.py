@@ -105,7 +105,8 @@ def measure_highway(name: str, seconds: float):
 
 
 # highway-env's own tasks, measured wherever envs_jax.make knows them
-TASKS = ["highway-v0", "highway-fast-v0", "merge-v0", "roundabout-v0", "racetrack-v0", "intersection-v0"]
+TASKS = ["highway-v0", "highway-fast-v0", "merge-v0", "roundabout-v0", "racetrack-v0", "intersection-v0",
+         "intersection-v1", "intersection-multi-agent-v0"]
 # what must agree for two simulators to run the same task
 SAME_TASK_KEYS = ("vehicles", "controlled", "simulation_frequency", "policy_frequency", "duration", "obs_shape",
                   "actions", "action_shape")

@@ -42,6 +42,32 @@ def test_same_task_as_envpool(task):
     assert env_throughput.differences(_ours(task)[1], baseline_sims.describe_envpool(task)) == []
 
 
+@pytest.mark.parametrize("task", ["intersection-v1", "intersection-multi-agent-v0"])
+def test_intersection_tasks_agree_with_highway_env_but_for_the_random_vehicle_count(task):
+    """The multi-agent task's tuple spaces are described per controlled vehicle ([K, ...], one action space);
+    the vehicles on the road at reset are a random draw of the warm-up (spawns, clears), so only they may differ."""
+    ours = _ours(task)[1]
+    theirs = baseline_sims.describe_highway_env(task)
+    assert [d.split(":")[0] for d in env_throughput.differences(ours, theirs)] in ([], ["vehicles"])
+    if task == "intersection-multi-agent-v0":
+        assert theirs["controlled"] == ours["controlled"] == 2
+        assert theirs["obs_shape"] == ours["obs_shape"] == [2, 15, 7] and theirs["actions"] == 3
+    result = baseline_sims.measure_highway_env(task, seconds=0.3, repeats=1)  # tuple actions step the env
+    assert result["steps"] >= 1 and result["steps_per_s"] > 0
+
+
+def test_envpool_two_player_task_steps_with_one_action_per_player():
+    """EnvPool's intersection-multi-agent-v0 holds two players per environment: the benchmark sends one action per
+    player, synchronously and asynchronously, and counts environment steps (not player steps)."""
+    pytest.importorskip("envpool")
+    desc = baseline_sims.describe_envpool("intersection-multi-agent-v0")
+    assert desc["controlled"] == 2 and desc["obs_shape"][0] == 2
+    for num_envs, batch in ((2, 2), (4, 2)):
+        row = baseline_sims.measure_envpool("intersection-multi-agent-v0", num_envs, batch, seconds=0.3, repeats=1,
+                                            num_threads=1)
+        assert row["steps_per_s"] > 0 and row["batch_size"] == batch
+
+
 def test_differences_names_what_disagrees():
     ours = {"vehicles": 51, "simulation_frequency": 15, "duration": 40.0, "obs_shape": [5, 5], "actions": 5}
     theirs = dict(ours, vehicles=5, duration=40, obs_shape=[15, 7], actions=3)
