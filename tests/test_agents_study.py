@@ -29,12 +29,18 @@ def test_hierarchies_are_valid_and_of_the_named_shape():
 def test_plan_runs_every_method_once_per_k_and_skips_the_horizontal_copy_of_the_chain():
     items = agents_study.plan(agents=(2, 3, 4))
     names = [it["name"] for it in items]
-    assert len(names) == len(set(names)) == 4 + 5 + 5
+    assert len(names) == len(set(names)) == (4 + 5 + 5) + (5 + 5)  # merge-v0 at K = 2, 3, 4; merge-cavs at 3, 4
     assert "merge-v0_K2_csq-horizontal" not in names and "merge-v0_K3_csq-horizontal" in names
+    assert not any(n.startswith("merge-cavs_K2") for n in names)  # MARL_CAVs' traffic has no K = 2
     by_name = {it["name"]: it for it in items}
     assert by_name["merge-v0_K4_csq-chain"]["overrides"] == {"agents": 4, "num_seeds": 8, "hierarchy": "0|1|2|3"}
     assert by_name["merge-v0_K3_mappo-l"]["overrides"] == {"agents": 3, "num_seeds": 8}
-    assert [it["agents"] for it in items] == sorted(it["agents"] for it in items)  # all methods at K = 2 first
+    assert by_name["merge-cavs_K4_csq-horizontal"]["overrides"] == {"agents": 4, "num_seeds": 8,
+                                                                     "hierarchy": "0,1|2,3"}
+    for scenario in agents_study.SCENARIOS:  # per scenario, all methods at the smallest K first
+        ks = [it["agents"] for it in items if it["scenario"] == scenario]
+        assert ks == sorted(ks) and set(ks) == set(agents_study.SCENARIO_AGENTS[scenario])
+    assert [it["scenario"] for it in agents_study.plan(agents=(2,))] == ["merge-v0"] * 4
     small = agents_study.plan(agents=(3,), seeds=2, steps=4096)
     assert all(it["overrides"]["num_seeds"] == 2 and it["overrides"]["total_steps"] == 4096 for it in small)
     for bad in (1, 5, 2.0):
@@ -46,7 +52,7 @@ def test_every_planned_run_resolves_to_a_valid_configuration():
     for item in agents_study.plan():
         config, reason = experiments._resolve(item)
         assert config is not None, reason
-        assert config["agents"] == item["agents"] and config["scenario"] == "merge-v0"
+        assert config["agents"] == item["agents"] and config["scenario"] == item["scenario"]
 
 
 def _summary(algo, k, per_seed_returns, crash, speed, seeds=4):

@@ -1,15 +1,18 @@
 """The K-agent study: does the Stackelberg structure buy safety or return as the number of agents grows?
 
 ```
-python -m train.experiments --study agents                   # merge-v0 with traffic, K = 2, 3, 4, 8 seeds each
+python -m train.experiments --study agents                   # merge-v0 (K = 2, 3, 4) and merge-cavs (K = 3, 4)
 python -m train.experiments --study agents --agents 2 --agents 3   # a subset of K
 python -m train.experiments --study agents --report-only     # redraw the figure and AGENTS.md
 ```
 
-Per scenario and K: CSQ with the vertical chain (``0|1|...``), the horizontal split (the first ``ceil(K/2)``
-agents lead, the others follow, e.g. ``0,1|2,3``; at K = 2 it is the chain and is not run twice) and no hierarchy
-(``0,1,...``, all agents on one level), and the flat MAPPO-L and MACPO, each with the scenario's shipped
-configuration (``train/configs/<scenario>_<algo>.json``) and 8 seeds. Study folder (``--out``, default
+Scenarios: highway-env's ``merge-v0`` with its IDM traffic and K = 2, 3, 4 controlled vehicles, and MARL_CAVs'
+merge ``merge-cavs`` at K = 3 (easy traffic, 1-3 CAVs per episode) and K = 4 (medium, 2-4); there K is the most
+CAVs an episode can have, and an agent absent from an episode earns 0 reward and 0 cost, so "per agent" below means
+per agent slot. Per scenario and K: CSQ with the vertical chain (``0|1|...``), the horizontal split (the first
+``ceil(K/2)`` agents lead, the others follow, e.g. ``0,1|2,3``; at K = 2 it is the chain and is not run twice)
+and no hierarchy (``0,1,...``, all agents on one level), and the flat MAPPO-L and MACPO, each with the scenario's
+shipped configuration (``train/configs/<scenario>_<algo>.json``) and 8 seeds. Study folder (``--out``, default
 ``runs/agents_study``)::
 
     runs/<scenario>_K<k>_<method>/   one run folder each (train.run)
@@ -34,11 +37,20 @@ import numpy as np
 
 from train.report import _fmt, compare, interval
 
-__all__ = ["SCENARIOS", "AGENTS", "METHODS", "SEEDS", "hierarchy", "plan", "collect", "measure", "render_report",
-           "plot", "write_report"]
+__all__ = ["SCENARIOS", "AGENTS", "SCENARIO_AGENTS", "SCENARIO_NOTES", "METHODS", "SEEDS", "hierarchy", "plan",
+           "collect", "measure", "render_report", "plot", "write_report"]
 
-SCENARIOS = ("merge-v0",)
+SCENARIOS = ("merge-v0", "merge-cavs")
 AGENTS = (2, 3, 4)
+# the K each scenario takes (merge-cavs: its easy and medium traffic, train/config.py)
+SCENARIO_AGENTS = {"merge-v0": (2, 3, 4), "merge-cavs": (3, 4)}
+# a sentence under a scenario's heading in AGENTS.md
+SCENARIO_NOTES = {
+    "merge-v0": "highway-env's merge-v0 with its four IDM vehicles and K controlled vehicles.",
+    "merge-cavs": "MARL_CAVs' merge: K = 3 is its easy traffic (1-3 CAVs and 1-3 IDM vehicles per episode), K = 4 "
+                  "its medium traffic (2-4 and 2-4). An agent absent from an episode earns 0 reward and 0 cost, so "
+                  "return and cost per agent are per agent slot (the episode's sum over the K slots divided by K).",
+}
 # (method name, algorithm, hierarchy shape): Stackelberg methods first, then their flat counterparts
 METHODS = (("csq-chain", "csq", "chain"), ("csq-horizontal", "csq", "horizontal"), ("csq-flat", "csq", "flat"),
            ("mappo-l", "mappo-l", None), ("macpo", "macpo", None))
@@ -64,15 +76,16 @@ def hierarchy(shape: str | None, k: int) -> str | None:
 
 
 def plan(scenarios=SCENARIOS, agents=AGENTS, seeds: int | None = None, steps: int | None = None) -> list[dict]:
-    """The runs of the study, in order (all methods at the smallest K first), as :mod:`train.experiments` items
-    with a ``name``; the horizontal split is left out where it equals the chain (K = 2)."""
+    """The runs of the study, in order (per scenario, all methods at the smallest K first), as
+    :mod:`train.experiments` items with a ``name``; the horizontal split is left out where it equals the chain
+    (K = 2), and a scenario runs only the K it takes (``SCENARIO_AGENTS``)."""
     for k in agents:
         if not isinstance(k, int) or not 2 <= k <= 4:
             raise ValueError(f"--agents for the K-agent study must be 2, 3 or 4 (CSQ's joint-action grid is 5^K), "
                              f"got {k!r}")
     out = []
     for scenario in scenarios:
-        for k in sorted(set(agents)):
+        for k in sorted(set(agents) & set(SCENARIO_AGENTS[scenario])):
             for method, algo, shape in METHODS:
                 h = hierarchy(shape, k)
                 if shape == "horizontal" and h == hierarchy("chain", k):
@@ -189,7 +202,8 @@ def render_report(study_dir: str, study: dict | None = None, items: list[dict] |
     for scenario, runs in all_runs.items():
         budgets = sorted({(s["config"]["algo"], s["config"]["num_seeds"], s["config"]["total_steps"])
                           for r in runs.values() for s in r.values()})
-        lines += [f"## {scenario}", "", "Budgets (algorithm: seeds x env steps per seed): "
+        lines += [f"## {scenario}", "", SCENARIO_NOTES.get(scenario, ""), "",
+                  "Budgets (algorithm: seeds x env steps per seed): "
                   + "; ".join(f"{a}: {n} x {t:,}" for a, n, t in budgets) + ".", ""]
         fig = (figures or {}).get(scenario)
         if fig:

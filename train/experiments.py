@@ -318,7 +318,7 @@ def parse_args(argv=None):
                                     "study: " + "; ".join(f"{s}: {', '.join(a)}" for s, a in STUDY.items())))
     p.add_argument("--study", choices=("paper", "agents"), default="paper",
                    help="paper: the paper's scenarios and algorithms (RESULTS.md); agents: the K-agent study on "
-                        "merge-v0, CSQ with three hierarchies against MAPPO-L and MACPO (AGENTS.md)")
+                        "merge-v0 and merge-cavs, CSQ with three hierarchies against MAPPO-L and MACPO (AGENTS.md)")
     p.add_argument("--agents", type=int, action="append", default=None, metavar="K",
                    help="--study agents: the numbers of agents to run (repeatable; default 2, 3 and 4)")
     p.add_argument("--quick", action="store_true",
