@@ -22,6 +22,7 @@ evaluated at once as a ``[V, V]`` matrix (docs/scenarios.md,
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -85,24 +86,33 @@ def predict_along_route(road: Road, st: TrafficState, times):
         ptr = ptr + more
         remaining = remaining - more
         lane = entry_lane(ptr)
-    x, y = L.position(lanes, lane, longitudinal, jnp.zeros_like(longitudinal))
-    heading = L.heading_at(lanes, lane, longitudinal)
-    return x, y, heading
+
+    def at_time(lane_s):  # every slot's pose at one time of the horizon
+        lane_t, s_t = lane_s
+        x, y = L.position(lanes, lane_t, s_t, jnp.zeros_like(s_t))
+        return x, y, L.heading_at(lanes, lane_t, s_t)
+
+    # one time per loop iteration: a loop's outputs are materialised, so the [V, V, T] pair checks read them; as
+    # one elementwise expression XLA fuses the lane geometry (its sines and cosines) into those checks and redoes
+    # it for every pair
+    x, y, heading = jax.lax.map(at_time, (lane.T, longitudinal.T))
+    return x.T, y.T, heading.T
 
 
-def _corners(x, y, heading):
-    """``rect_corners(center, 1.5 L, 0.9 W, heading, include_midpoints=True, include_center=True)``: ``[..., 9, 2]``."""
+def _corners(x, y, c, s):
+    """``rect_corners(center, 1.5 L, 0.9 W, heading, include_midpoints=True, include_center=True)``: ``[..., 9]``
+    x and y, from the heading's cosine ``c`` and sine ``s``."""
     hl, hw = CONFLICT_LENGTH / 2, CONFLICT_WIDTH / 2
     local = np.array([[-hl, -hw], [-hl, hw], [hl, hw], [hl, -hw], [0, 0], [-hl, 0], [hl, 0], [0, -hw], [0, hw]])
-    c, s = jnp.cos(heading)[..., None], jnp.sin(heading)[..., None]
+    c, s = c[..., None], s[..., None]
     lx, ly = jnp.asarray(local[:, 0], x.dtype), jnp.asarray(local[:, 1], x.dtype)
     return c * lx - s * ly + x[..., None], s * lx + c * ly + y[..., None]
 
 
-def _inside(px, py, x, y, heading):
+def _inside(px, py, x, y, c, s):
     """``point_in_rotated_rectangle(p, center, 1.5 L, 0.9 W, heading)`` (highway-env rotates ``p - center`` by
-    ``+heading``), inclusive bounds; ``p`` ``[..., 9]``, the rectangle ``[...]``."""
-    c, s = jnp.cos(heading)[..., None], jnp.sin(heading)[..., None]
+    ``+heading``: cosine ``c``, sine ``s``), inclusive bounds; ``p`` ``[..., 9]``, the rectangle ``[...]``."""
+    c, s = c[..., None], s[..., None]
     dx, dy = px - x[..., None], py - y[..., None]
     u, v = c * dx - s * dy, s * dx + c * dy
     hl, hw = CONFLICT_LENGTH / 2, CONFLICT_WIDTH / 2
@@ -111,14 +121,22 @@ def _inside(px, py, x, y, heading):
 
 def conflicts(px, py, ph):
     """``is_conflict_possible`` for every pair: ``[V, V]`` (symmetric) from predictions ``[V, T]``."""
-    xi, yi, hi = px[:, None, :], py[:, None, :], ph[:, None, :]
-    xj, yj, hj = px[None, :, :], py[None, :, :], ph[None, :, :]
-    dx, dy = xj - xi, yj - yi
+
+    def at_time(xyh):  # every slot's predicted rectangle at one time: heading cosine, sine and its 9 points
+        x, y, h = xyh
+        c, s = jnp.cos(h), jnp.sin(h)
+        return (c, s) + _corners(x, y, c, s)
+
+    # one time per loop iteration: the loop's outputs are materialised, so the [T, V, V, 9] tests below read them
+    # (as one expression XLA would redo the sines and cosines for every pair)
+    c, s, cx, cy = jax.lax.map(at_time, (px.T, py.T, ph.T))  # [T, V], [T, V], [T, V, 9], [T, V, 9]
+    x, y = px.T, py.T
+    dx, dy = x[:, None, :] - x[:, :, None], y[:, None, :] - y[:, :, None]  # [T, i, j]: j's centre minus i's
     near = ~(jnp.sqrt(dx * dx + dy * dy) > Veh.LENGTH)
-    cxi, cyi = _corners(px, py, ph)  # [V, T, 9]
-    i_in_j = jnp.any(_inside(cxi[:, None], cyi[:, None], xj, yj, hj), axis=-1)
-    j_in_i = jnp.any(_inside(cxi[None, :], cyi[None, :], xi, yi, hi), axis=-1)
-    return jnp.any(near & (i_in_j | j_in_i), axis=-1)
+    # [T, i, j]: a point of i's rectangle inside j's; j's points inside i's rectangle is its transpose
+    i_in_j = jnp.any(_inside(cx[:, :, None], cy[:, :, None], x[:, None, :], y[:, None, :], c[:, None, :],
+                             s[:, None, :]), axis=-1)
+    return jnp.any(near & (i_in_j | jnp.swapaxes(i_in_j, 1, 2)), axis=0)
 
 
 def yielding_side(priority, x, y, heading):
