@@ -41,6 +41,7 @@ import numpy as np  # noqa: E402
 
 import baseline_sims  # noqa: E402
 import envs_jax  # noqa: E402
+from envs_jax.sparse import reset_where  # noqa: E402
 from envs_jax.wrappers import AutoResetWrapper, random_actions  # noqa: E402
 
 
@@ -133,7 +134,7 @@ class TaskAutoReset:
     def step(self, key, state, action, params=None):
         key_step, key_reset = jax.random.split(key)
         obs, st, reward, cost, done, info = self.env.step(key_step, state, action, params)
-        obs_reset, st_reset = self.env.reset(key_reset, params)
+        obs_reset, st_reset = reset_where(self.env.reset, done, key_reset, params)  # as TrafficAutoResetWrapper
         st = jax.tree_util.tree_map(lambda a, b: jnp.where(done, a, b), st_reset, st)
         return jnp.where(done, obs_reset, obs), st, reward, cost, done, info
 

@@ -38,6 +38,16 @@ def sparse_map(fn, mask, *args, fraction: float = 1 / 8):
     return f(mask, *args)
 
 
+def reset_where(reset, done, key, params, fraction: float = 1 / 8):
+    """``reset(key, params)`` of an environment whose episode is ``done`` (zeros where it is not), computed only
+    where needed: under ``vmap`` only the finished environments of the batch reset (:func:`sparse_map`, one row
+    per environment; ``fraction``: about the share of environments that finish on one step), unbatched only when
+    ``done``. For auto-reset wrappers of tasks whose reset costs more than a step (a warm-up simulation)."""
+    params_row = jax.tree_util.tree_map(lambda a: jnp.asarray(a)[None], params)
+    out = sparse_map(lambda k, p: reset(k, p), jnp.reshape(done, (1,)), key[None], params_row, fraction=fraction)
+    return jax.tree_util.tree_map(lambda a: a[0], out)
+
+
 def packed_rows(vfn, mask, *args, fraction: float = 1 / 8):
     """``vfn`` (batched over the leading axis) on the rows ``k`` of ``args`` where ``mask[k]``
     (``mask``: ``[n]``), zeros elsewhere: the masked rows are packed (in order) into chunks of

@@ -22,6 +22,8 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
+from envs_jax.sparse import reset_where
+
 __all__ = ["TrafficAutoResetState", "TrafficAutoResetWrapper"]
 
 
@@ -77,7 +79,8 @@ class TrafficAutoResetWrapper:
         speed_sum = state.episode_speed_sum + jnp.where(drove, st.speed[idx], 0.0)
         active = state.episode_active_steps + drove.astype(jnp.int32)
         terminated = state.episode_terminated | info["terminated"]
-        obs_reset, st_reset = self.reset(key_reset, params)
+        # only the finished episodes reset (under vmap: those of the batch); intersection's warm-up costs 3 steps
+        obs_reset, st_reset = reset_where(self.reset, done, key_reset, params)
         new_st = jax.tree_util.tree_map(lambda a, b: jnp.where(done, a, b), st_reset.env_state, st)
         new_obs = jnp.where(done, obs_reset, obs)
         info = dict(info)

@@ -105,3 +105,28 @@ def test_vmapped_envs_equal_envs_stepped_one_by_one(name):
     assert (np.diff(lane, axis=1) != 0).any()  # lane ends reached: the next-lane path ran in some envs
     if name == "merge":
         assert np.asarray(batched[2]).any()  # and crashes (the obstacle): the SAT path
+
+
+@pytest.mark.parametrize("name", ["intersection-v0", "merge-v0"])
+def test_reset_where_equals_the_dense_reset_where_done(name):
+    """``reset_where`` (auto-reset wrappers) against ``where(done, reset(key), 0)``: a batch within one chunk, one
+    packed in several chunks (200 envs, 60% done: capacity 64), and unbatched with done and not done."""
+    from envs_jax.sparse import reset_where
+
+    env = envs_jax.make(name)
+    params = env.default_params
+    dense = jax.vmap(lambda k, d: jax.tree_util.tree_map(lambda r: jnp.where(d, r, jnp.zeros_like(r)),
+                                                         env.reset(k, params)))
+    sparse = jax.vmap(lambda k, d: reset_where(env.reset, d, k, params))
+    for n, p in ((8, 0.3), (200, 0.6)):
+        keys = jax.random.split(jax.random.key(n), n)
+        done = jax.random.uniform(jax.random.key(n + 1), (n,)) < p
+        got, want = jax.jit(sparse)(keys, done), jax.jit(dense)(keys, done)
+        for g, w in zip(jax.tree_util.tree_leaves(got), jax.tree_util.tree_leaves(want)):
+            np.testing.assert_allclose(np.asarray(g, np.float64), np.asarray(w, np.float64), rtol=1e-6, atol=1e-6)
+        assert int(done.sum()) > 64 or n == 8  # the large batch needs more than one chunk
+    key = jax.random.key(7)
+    obs, _ = env.reset(key, params)
+    one = jax.jit(lambda d: reset_where(env.reset, d, key, params))
+    np.testing.assert_allclose(np.asarray(one(jnp.array(True))[0]), np.asarray(obs), rtol=1e-6, atol=1e-6)
+    assert not np.any(np.asarray(one(jnp.array(False))[0]))
