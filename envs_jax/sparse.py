@@ -6,7 +6,7 @@ import jax
 import jax.numpy as jnp
 
 
-def sparse_map(fn, mask, *args, fraction: float = 1 / 8):
+def sparse_map(fn, mask, *args, fraction: float = 1 / 8, min_rows: int = 64):
     """``fn`` applied to the rows ``k`` of ``args`` (leading axis) where ``mask[k]``; zeros elsewhere.
 
     For work that is needed only rarely but would otherwise run for every
@@ -15,7 +15,8 @@ def sparse_map(fn, mask, *args, fraction: float = 1 / 8):
     next-lane choice of a vehicle at the end of its lane. Without ``vmap`` it is a
     ``cond`` on ``any(mask)``. Under ``vmap`` (custom batching rule) the masked rows
     of the whole batch are packed into chunks of a fixed capacity (``fraction`` of the
-    rows, at least 64: about the share of rows expected to be masked), ``fn`` runs on
+    rows, at least ``min_rows``: about the share of rows expected to be masked; fewer where
+    a row is a whole environment's work), ``fn`` runs on
     those only, and the results are scattered back; a ``while_loop`` over chunks
     keeps it exact whatever the number of masked rows. Rows are independent, so the
     result equals ``where(mask, vmap(fn)(*args), 0)`` up to XLA compiling ``fn``'s
@@ -31,31 +32,32 @@ def sparse_map(fn, mask, *args, fraction: float = 1 / 8):
         flat = lambda a, b: (a if b else jnp.broadcast_to(a, (axis_size,) + a.shape)).reshape((n,) + a.shape[1 + b:])
         mask = flat(mask, in_batched[0])
         args = jax.tree_util.tree_map(flat, args, tuple(in_batched[1:]))
-        out = packed_rows(vfn, mask, *args, fraction=fraction)
+        out = packed_rows(vfn, mask, *args, fraction=fraction, min_rows=min_rows)
         out = jax.tree_util.tree_map(lambda o: o.reshape((axis_size, k) + o.shape[1:]), out)
         return out, jax.tree_util.tree_map(lambda _: True, out)
 
     return f(mask, *args)
 
 
-def reset_where(reset, done, key, params, fraction: float = 1 / 8):
+def reset_where(reset, done, key, params, fraction: float = 1 / 8, min_rows: int = 8):
     """``reset(key, params)`` of an environment whose episode is ``done`` (zeros where it is not), computed only
     where needed: under ``vmap`` only the finished environments of the batch reset (:func:`sparse_map`, one row
     per environment; ``fraction``: about the share of environments that finish on one step), unbatched only when
     ``done``. For auto-reset wrappers of tasks whose reset costs more than a step (a warm-up simulation)."""
     params_row = jax.tree_util.tree_map(lambda a: jnp.asarray(a)[None], params)
-    out = sparse_map(lambda k, p: reset(k, p), jnp.reshape(done, (1,)), key[None], params_row, fraction=fraction)
+    out = sparse_map(lambda k, p: reset(k, p), jnp.reshape(done, (1,)), key[None], params_row, fraction=fraction,
+                     min_rows=min_rows)
     return jax.tree_util.tree_map(lambda a: a[0], out)
 
 
-def packed_rows(vfn, mask, *args, fraction: float = 1 / 8):
+def packed_rows(vfn, mask, *args, fraction: float = 1 / 8, min_rows: int = 64):
     """``vfn`` (batched over the leading axis) on the rows ``k`` of ``args`` where ``mask[k]``
     (``mask``: ``[n]``), zeros elsewhere: the masked rows are packed (in order) into chunks of
-    a fixed capacity (``max(64, fraction * n)``), ``vfn`` runs on each chunk and the results
+    a fixed capacity (``max(min_rows, fraction * n)``), ``vfn`` runs on each chunk and the results
     are scattered back; a ``while_loop`` over chunks keeps it exact whatever the number of
     masked rows. ``sparse_map``'s batching rule, usable directly on flat rows."""
     n = mask.shape[0]
-    cap = n if n <= 64 else min(n, max(64, int(n * fraction)))  # static chunk capacity
+    cap = n if n <= min_rows else min(n, max(min_rows, int(n * fraction)))  # static chunk capacity
     if cap == n:  # one chunk holds every row (few envs): no packing
         return _all_rows(vfn, mask, *args)
     size = -(-n // cap) * cap

@@ -54,6 +54,7 @@ from envs_jax.scenarios.config_values import (
     unwrap_section,
 )
 from envs_jax.scenarios.intersection import build_road
+from envs_jax.sparse import sparse_map
 from envs_jax.time_limit import step_limit
 from envs_jax.traffic_env import Task, TrafficEnv, TrafficParams
 from envs_jax.traffic_state import TrafficState
@@ -64,6 +65,7 @@ SPAWN_CLEARANCE = 15.0  # [m] a spawn is dropped when a vehicle is closer
 EGO_CLEARANCE = 20.0  # [m] IDM vehicles closer to a new agent are removed
 EXIT_DISTANCE = 25.0  # [m] has_arrived's exit_distance
 WARMUP_SECONDS = 3
+RULES_FRACTION = 1 / 4  # above the share of environments whose regulation is due on a frame (1 / period)
 
 DEFAULTS = {
     "intersection-v0": dict(simulation_frequency=15, policy_frequency=1, duration=13, destination="o1",
@@ -384,8 +386,15 @@ class IntersectionTrafficEnv(TrafficEnv):
         st = drivers.road_act(self.road, st, self.is_idm, self.is_mdp, params.idm, obstacles)
         steps = st.road_steps + 1
         due = steps % self.task.period == 0
-        ts, yl, yt = regulation.enforce_road_rules(self.road, st, st.yielding, st.yield_timer, self.task.priority,
-                                                   self.is_idm, st.order, self._predictions(st))
+
+        def rules(s):
+            return regulation.enforce_road_rules(self.road, s, s.yielding, s.yield_timer, self.task.priority,
+                                                 self.is_idm, s.order, self._predictions(s))
+
+        # the rules run on one frame in `period`: under vmap only for the environments where they are due
+        row = sparse_map(rules, due[None], jax.tree_util.tree_map(lambda a: a[None], st), fraction=RULES_FRACTION,
+                         min_rows=8)
+        ts, yl, yt = (a[0] for a in row)
         st = st.replace(target_speed=jnp.where(due, ts, st.target_speed), yielding=jnp.where(due, yl, st.yielding),
                         yield_timer=jnp.where(due, yt, st.yield_timer), road_steps=steps)
         return self._road_step(st, obstacles, dt)
