@@ -16,6 +16,7 @@ missing instead of raising.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import statistics
 import time
@@ -60,9 +61,33 @@ def highway_env_task(task: str):
     return gymnasium.make(task)
 
 
+@contextlib.contextmanager
+def highway_env_driver_constants_kept():
+    """Put back the IDM class constants that highway-env's intersection sets on every reset.
+
+    ``IntersectionEnv._make_vehicles`` assigns ``DISTANCE_WANTED``, ``COMFORT_ACC_MAX`` and ``COMFORT_ACC_MIN`` on
+    the ``IDMVehicle`` class itself, so every highway-env task run later in the same process would drive with the
+    intersection's constants.
+    """
+    from highway_env.vehicle.behavior import IDMVehicle
+
+    names = ("DISTANCE_WANTED", "COMFORT_ACC_MAX", "COMFORT_ACC_MIN")
+    saved = {n: IDMVehicle.__dict__.get(n) for n in names}
+    try:
+        yield
+    finally:
+        for n, v in saved.items():
+            if v is None:
+                if n in IDMVehicle.__dict__:
+                    delattr(IDMVehicle, n)
+            else:
+                setattr(IDMVehicle, n, v)
+
+
 def describe_highway_env(task: str) -> dict:
-    env = highway_env_task(task)
-    env.reset(seed=0)
+    with highway_env_driver_constants_kept():
+        env = highway_env_task(task)
+        env.reset(seed=0)
     cfg = env.unwrapped.config
     return {"vehicles": len(env.unwrapped.road.vehicles), "controlled": len(env.unwrapped.controlled_vehicles),
             "simulation_frequency": cfg["simulation_frequency"], "policy_frequency": cfg["policy_frequency"],
@@ -72,19 +97,20 @@ def describe_highway_env(task: str) -> dict:
 
 def measure_highway_env(task: str, seconds: float, repeats: int = 3) -> dict:
     """Steps per second of highway-env on ``task``: median over ``repeats`` blocks of ``seconds / repeats``."""
-    env = highway_env_task(task)
-    rng = np.random.default_rng(0)
-    env.reset(seed=0)
     rates, steps_total = [], 0
-    for _ in range(repeats):
-        steps, t0 = 0, time.perf_counter()
-        while time.perf_counter() - t0 < seconds / repeats or steps == 0:
-            _, _, terminated, truncated, _ = env.step(_random_action(env.action_space, rng))
-            steps += 1
-            if terminated or truncated:
-                env.reset()
-        rates.append(steps / (time.perf_counter() - t0))
-        steps_total += steps
+    with highway_env_driver_constants_kept():
+        env = highway_env_task(task)
+        rng = np.random.default_rng(0)
+        env.reset(seed=0)
+        for _ in range(repeats):
+            steps, t0 = 0, time.perf_counter()
+            while time.perf_counter() - t0 < seconds / repeats or steps == 0:
+                _, _, terminated, truncated, _ = env.step(_random_action(env.action_space, rng))
+                steps += 1
+                if terminated or truncated:
+                    env.reset()
+            rates.append(steps / (time.perf_counter() - t0))
+            steps_total += steps
     return {"steps_per_s": statistics.median(rates), "steps": steps_total}
 
 

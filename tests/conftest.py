@@ -1,6 +1,7 @@
 import gc
 import os
 import shutil
+import sys
 import tempfile
 
 os.environ.setdefault("XLA_FLAGS", "--xla_force_host_platform_device_count=1")
@@ -42,6 +43,37 @@ def _release_compiled_programs():
     yield
     jax.clear_caches()
     gc.collect()
+
+
+def _driver_class_constants() -> dict:
+    """highway-env's upper-case class constants of its vehicle classes, where highway-env is already imported."""
+    behavior = sys.modules.get("highway_env.vehicle.behavior")
+    if behavior is None:
+        return {}
+    return {(cls.__name__, name): value for cls in (behavior.IDMVehicle, behavior.LinearVehicle)
+            for name, value in vars(cls).items() if name.isupper()}
+
+
+@pytest.fixture(autouse=True)
+def _highway_env_class_constants_unchanged():
+    """Fail the test that leaves highway-env's driver constants changed, and put them back.
+
+    highway-env's intersection sets IDM constants on the class at each reset; a test that runs it without
+    restoring them changes how every later highway-env oracle drives in the same worker process.
+    """
+    before = _driver_class_constants()
+    yield
+    after = _driver_class_constants()
+    changed = sorted(k for k in set(before) | set(after) if repr(before.get(k)) != repr(after.get(k)))
+    if changed:
+        behavior = sys.modules["highway_env.vehicle.behavior"]
+        for cls_name, name in changed:
+            cls = getattr(behavior, cls_name)
+            if (cls_name, name) in before:
+                setattr(cls, name, before[(cls_name, name)])
+            else:
+                delattr(cls, name)
+        pytest.fail(f"the test changed highway-env's class constants {changed}; restore them (restored now)")
 
 
 def pytest_unconfigure(config):
