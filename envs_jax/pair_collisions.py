@@ -18,7 +18,7 @@ import numpy as np
 
 from envs_jax import collision
 from envs_jax import vehicle as Veh
-from envs_jax.sparse import sparse_map
+from envs_jax.sparse import TableRows, sparse_map
 
 # Separating-axis rows packed per vehicle slot and env under vmap (more run in extra chunks).
 SAT_ROWS_PER_VEHICLE = 0.25
@@ -78,7 +78,9 @@ def collide(x, y, heading, speed, alive, crashed, check_collisions, obstacles, d
     close = jax.vmap(near)(pose_a, pose_b) & active
     # chunks sized by the vehicles, not the pairs: each vehicle has a few close neighbours, not O(V)
     fraction = min(1 / 32, SAT_ROWS_PER_VEHICLE * n_slots / a.size)
-    inter, will, trans = sparse_map(separating_axis, close, pose_a, pose_b, fraction=fraction)
+    # the poses are gathered again only for the packed close pairs (pose_a/pose_b are fused into `near`)
+    rows_a, rows_b = TableRows(pose, jnp.asarray(a)), TableRows(pose, jnp.asarray(b))
+    inter, will, trans = sparse_map(separating_axis, close, rows_a, rows_b, fraction=fraction)
     inter, will = inter & close, will & close
 
     b_vehicle = b < n_slots

@@ -2,8 +2,22 @@
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import jax
 import jax.numpy as jnp
+
+
+class TableRows(NamedTuple):
+    """A row argument of :func:`sparse_map` given as rows of a table: row ``k`` is ``table[index[k]]``.
+
+    ``table`` holds one environment's rows (``[M, ...]``, e.g. every vehicle's pose) and ``index`` (``[k]``, ints)
+    picks one per row (e.g. the first vehicle of each pair). Under ``vmap`` only the packed rows are gathered, so the
+    ``[k, ...]`` argument (one pose per vehicle pair, per environment) is never built.
+    """
+
+    table: jax.Array
+    index: jax.Array
 
 
 def sparse_map(fn, mask, *args, fraction: float = 1 / 8, min_rows: int = 64):
@@ -20,23 +34,59 @@ def sparse_map(fn, mask, *args, fraction: float = 1 / 8, min_rows: int = 64):
     those only, and the results are scattered back; a ``while_loop`` over chunks
     keeps it exact whatever the number of masked rows. Rows are independent, so the
     result equals ``where(mask, vmap(fn)(*args), 0)`` up to XLA compiling ``fn``'s
-    arithmetic differently (an ulp at most; tests/test_sparse_map.py).
+    arithmetic differently (an ulp at most; tests/test_sparse_map.py). An argument may be
+    a :class:`TableRows` (rows gathered from a table only where needed); an argument without
+    the batch axis is shared by every environment and is not copied per environment.
     """
     vfn = jax.vmap(fn)
-    f = jax.custom_batching.custom_vmap(lambda mask, *args: _all_rows(vfn, mask, *args))
+    is_table = tuple(isinstance(a, TableRows) for a in args)
+    leaves = [x for a in args for x in ((a.table, a.index) if isinstance(a, TableRows) else (a,))]
+
+    def unbatched(mask, *leaves):
+        it = iter(leaves)
+        rows = [(lambda t, i: t[i])(next(it), next(it)) if table else next(it) for table in is_table]
+        return _all_rows(vfn, mask, *rows)
+
+    f = jax.custom_batching.custom_vmap(unbatched)
 
     @f.def_vmap
-    def rule(axis_size, in_batched, mask, *args):
+    def rule(axis_size, in_batched, mask, *leaves):
         k = mask.shape[-1]
         n = axis_size * k  # rows of the whole batch, flattened
-        flat = lambda a, b: (a if b else jnp.broadcast_to(a, (axis_size,) + a.shape)).reshape((n,) + a.shape[1 + b:])
-        mask = flat(mask, in_batched[0])
-        args = jax.tree_util.tree_map(flat, args, tuple(in_batched[1:]))
-        out = packed_rows(vfn, mask, *args, fraction=fraction, min_rows=min_rows)
+        mask = (mask if in_batched[0] else jnp.broadcast_to(mask, (axis_size, k))).reshape(n)
+        it = iter(zip(leaves, in_batched[1:]))
+        getters = [_table_getter(*next(it), *next(it), axis_size, k) if table else _row_getter(*next(it), axis_size, k)
+                   for table in is_table]
+        out = _packed(vfn, mask, lambda rows: tuple(g(rows) for g in getters), fraction, min_rows)
         out = jax.tree_util.tree_map(lambda o: o.reshape((axis_size, k) + o.shape[1:]), out)
         return out, jax.tree_util.tree_map(lambda _: True, out)
 
-    return f(mask, *args)
+    return f(mask, *leaves)
+
+
+def _row_getter(arg, batched, axis_size: int, k: int):
+    """Rows (flat indices over the batch) of a row argument, a pytree of ``[E, k, ...]`` or shared ``[k, ...]``."""
+    n = axis_size * k
+
+    def leaf(a, b):
+        return (lambda rows: a.reshape((n,) + a.shape[2:])[rows]) if b else (lambda rows: a[rows % k])
+
+    getters = jax.tree_util.tree_map(leaf, arg, batched)
+    return lambda rows: jax.tree_util.tree_map(lambda g: g(rows), getters)
+
+
+def _table_getter(table, table_batched, index, index_batched, axis_size: int, k: int):
+    """Rows (flat indices over the batch) of a :class:`TableRows` argument."""
+    n = axis_size * k
+
+    def get(rows):
+        i = index.reshape(n)[rows] if index_batched else index[rows % k]
+        if not table_batched:
+            return table[i]
+        m = table.shape[1]
+        return table.reshape((axis_size * m,) + table.shape[2:])[(rows // k) * m + i]
+
+    return get
 
 
 def reset_where(reset, done, key, params, fraction: float = 1 / 8, min_rows: int = 8):
@@ -56,22 +106,28 @@ def packed_rows(vfn, mask, *args, fraction: float = 1 / 8, min_rows: int = 64):
     a fixed capacity (``max(min_rows, fraction * n)``), ``vfn`` runs on each chunk and the results
     are scattered back; a ``while_loop`` over chunks keeps it exact whatever the number of
     masked rows. ``sparse_map``'s batching rule, usable directly on flat rows."""
+    fetch = lambda rows: jax.tree_util.tree_map(lambda a: a[rows], args)
+    return _packed(vfn, mask, fetch, fraction, min_rows)
+
+
+def _packed(vfn, mask, fetch, fraction: float, min_rows: int):
+    """:func:`packed_rows` with the arguments' rows given by ``fetch(row_indices)``."""
     n = mask.shape[0]
     cap = n if n <= min_rows else min(n, max(min_rows, int(n * fraction)))  # static chunk capacity
     if cap == n:  # one chunk holds every row (few envs): no packing
-        return _all_rows(vfn, mask, *args)
+        return _all_rows(vfn, mask, *fetch(jnp.arange(n, dtype=jnp.int32)))
     size = -(-n // cap) * cap
     count = jnp.sum(mask.astype(jnp.int32))
     # packed[r] = index of the r-th masked row (n past the last one), built once for all chunks
     slot = jnp.where(mask, _rank(mask), size)
     packed = jnp.full(size, n, jnp.int32).at[slot].set(jnp.arange(n, dtype=jnp.int32), mode="drop")
-    out = jax.eval_shape(vfn, *args)
+    out = jax.eval_shape(lambda r: vfn(*fetch(r)), jax.ShapeDtypeStruct((n,), jnp.int32))
     out = jax.tree_util.tree_map(lambda s: jnp.zeros(s.shape, s.dtype), out)
 
     def chunk(carry):
         c, out = carry
         rows = jax.lax.dynamic_slice(packed, (c * cap,), (cap,))
-        res = vfn(*jax.tree_util.tree_map(lambda a: a[jnp.minimum(rows, n - 1)], args))
+        res = vfn(*fetch(jnp.minimum(rows, n - 1)))
         out = jax.tree_util.tree_map(lambda o, r: o.at[rows].set(r, mode="drop"), out, res)
         return c + 1, out
 
