@@ -1,8 +1,9 @@
 """Environment steps per second: envs_jax vs highway-env, EnvPool and HighJax, side by side in one run.
 
 Each JAX measurement runs ``N`` auto-resetting environments with uniform random
-actions for ``T`` policy steps inside one jitted ``lax.scan``; compilation is timed
-apart and the figure is the median over repeats. Two groups:
+actions for ``T`` policy steps inside one jitted ``lax.scan``, the environments split
+over one JAX CPU device per core (``--devices``; EnvPool runs a thread per core);
+compilation is timed apart and the figure is the median over repeats. Two groups:
 
 * the authors' two-agent scenarios (1..65,536 parallel envs), next to highway-env
   stepping the same scenario (``tests/highway_oracle.py``) in this process;
@@ -26,6 +27,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import platform
 import statistics
@@ -38,6 +40,7 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
+from jax.sharding import Mesh, PartitionSpec  # noqa: E402
 
 import baseline_sims  # noqa: E402
 import envs_jax  # noqa: E402
@@ -45,12 +48,25 @@ from envs_jax.sparse import reset_where  # noqa: E402
 from envs_jax.wrappers import AutoResetWrapper, random_actions  # noqa: E402
 
 
-def jax_runner(env, num_envs: int, num_steps: int, wrapper=AutoResetWrapper, actions=random_actions):
+def jax_runner(env, num_envs: int, num_steps: int, wrapper=AutoResetWrapper, actions=random_actions,
+               devices: int = 1):
     """Jitted ``key -> finished episodes``: ``num_steps`` auto-reset steps of ``num_envs`` envs, random actions.
-    ``wrapper``/``actions``: the auto-reset wrapper and random policy of the package ``env`` comes from."""
-    wrapped = wrapper(env)
-    params = env.default_params
-    policy = actions(env)
+    ``wrapper``/``actions``: the auto-reset wrapper and random policy of the package ``env`` comes from.
+    ``devices``: the environments are split over this many JAX devices (as many as divide ``num_envs``), each
+    running its share as an independent program; on the CPU, with one device per core, that is how a JAX program
+    uses every core, as EnvPool uses one thread per core."""
+    d = math.gcd(num_envs, max(1, min(devices, len(jax.devices()))))
+    local = _rollout(wrapper(env), env.default_params, actions(env), num_envs // d, num_steps)
+    if d == 1:
+        return jax.jit(local)
+    mesh = Mesh(np.array(jax.devices()[:d]), ("envs",))
+    per_device = jax.shard_map(lambda keys: local(keys[0])[None], mesh=mesh, in_specs=PartitionSpec("envs"),
+                               out_specs=PartitionSpec("envs"), check_vma=False)
+    return jax.jit(lambda key: per_device(jax.random.split(key, d)).sum())
+
+
+def _rollout(wrapped, params, policy, num_envs: int, num_steps: int):
+    """``key -> finished episodes`` of ``num_envs`` auto-resetting envs over ``num_steps`` steps (not jitted)."""
 
     def run(key):
         key, key_reset = jax.random.split(key)
@@ -68,11 +84,12 @@ def jax_runner(env, num_envs: int, num_steps: int, wrapper=AutoResetWrapper, act
                                               length=num_steps)
         return episodes
 
-    return jax.jit(run)
+    return run
 
 
-def measure_jax(env, num_envs: int, num_steps: int, repeats: int, wrapper=AutoResetWrapper, actions=random_actions):
-    run = jax_runner(env, num_envs, num_steps, wrapper, actions)
+def measure_jax(env, num_envs: int, num_steps: int, repeats: int, wrapper=AutoResetWrapper, actions=random_actions,
+                devices: int = 1):
+    run = jax_runner(env, num_envs, num_steps, wrapper, actions, devices)
     t0 = time.perf_counter()
     run(jax.random.key(0)).block_until_ready()
     first = time.perf_counter() - t0
@@ -82,7 +99,7 @@ def measure_jax(env, num_envs: int, num_steps: int, repeats: int, wrapper=AutoRe
         run(jax.random.key(r + 1)).block_until_ready()
         times.append(time.perf_counter() - t0)
     med = statistics.median(times)
-    return {"num_envs": num_envs, "num_steps": num_steps, "seconds": med,
+    return {"num_envs": num_envs, "num_steps": num_steps, "devices": math.gcd(num_envs, devices), "seconds": med,
             "steps_per_s": num_envs * num_steps / med, "compile_s": max(first - med, 0.0), "load": load()}
 
 
@@ -199,7 +216,7 @@ def measure_task(name: str, args) -> dict:
         adapter = baseline_sims.HighJaxAdapter(*hj)
         hj_desc = baseline_sims.describe_highjax(*hj)
         rows = [measure_jax(adapter, n, max(args.task_min_steps, args.task_env_steps // n), args.repeats,
-                            wrapper=lambda e: e) for n in args.task_envs]
+                            wrapper=lambda e: e, devices=args.devices) for n in args.task_envs]
         result["highjax"] = {"version": hj_note, "task": hj_desc, "differences": differences(ours, hj_desc),
                              "rows": rows}
     elif name in baseline_sims.HIGHJAX_TASKS:
@@ -207,7 +224,7 @@ def measure_task(name: str, args) -> dict:
         print(f"  HighJax skipped: {hj_note}")
 
     result["jax"] = [measure_jax(env, n, max(args.task_min_steps, args.task_env_steps // n), args.repeats,
-                                 wrapper=TaskAutoReset) for n in args.task_envs]
+                                 wrapper=TaskAutoReset, devices=args.devices) for n in args.task_envs]
     best = max(r["steps_per_s"] for r in result["jax"])
     ratios = {"highway_env": best / result["highway_env"]["steps_per_s"]}
     for other in ("envpool", "highjax"):
@@ -287,8 +304,18 @@ def main(argv=None):
     parser.add_argument("--baseline", default=None,
                         help="an earlier JSON of this script, printed beside the new figures")
     parser.add_argument("--quick", action="store_true", help="envs 1, 256, 4096 and fewer steps")
+    parser.add_argument("--devices", type=int, default=os.cpu_count() or 1,
+                        help="JAX CPU devices the environments are split over (default: one per core, as EnvPool "
+                             "runs a thread per core; 1: one device, XLA's own threads only)")
     parser.add_argument("--out", default=os.path.join(os.path.dirname(__file__), "results", "env_throughput.json"))
     args = parser.parse_args(argv)
+    if args.devices < 1:
+        raise ValueError(f"--devices must be at least 1, got {args.devices}")
+    try:  # one JAX device per core; must come before JAX runs anything
+        jax.config.update("jax_num_cpu_devices", args.devices)
+    except RuntimeError:
+        print(f"note: JAX had started before --devices could apply; {len(jax.devices())} device(s)")
+    args.devices = min(args.devices, len(jax.devices()))
     if args.quick:
         args.envs, args.env_steps, args.highway_seconds = [1, 256, 4096], 1 << 16, 5.0
         args.task_envs, args.task_env_steps, args.envpool_seconds = [1, 16], 256, 3.0
@@ -303,7 +330,7 @@ def main(argv=None):
 
     results = {"machine": {"platform": platform.platform(), "processor": platform.processor(),
                            "cpus": os.cpu_count(), "jax": jax.__version__,
-                           "device": str(jax.devices()[0])}, "scenarios": {}, "tasks": {}}
+                           "device": str(jax.devices()[0]), "devices": args.devices}, "scenarios": {}, "tasks": {}}
     if baseline is not None:
         results["baseline"] = args.baseline
     print(f"device: {jax.devices()[0]}, {os.cpu_count()} CPUs, jax {jax.__version__}, load {load():.1f}")
@@ -320,7 +347,7 @@ def main(argv=None):
         rows = []
         for n in args.envs:
             t = max(10, args.env_steps // n)
-            row = measure_jax(env, n, t, args.repeats)
+            row = measure_jax(env, n, t, args.repeats, devices=args.devices)
             row["ratio"] = row["steps_per_s"] / hw
             rows.append(row)
         results["scenarios"][name] = {"highway_env_steps_per_s": hw, "jax": rows, "load_start": start,

@@ -101,3 +101,38 @@ def test_exponent_recovers_a_power_law(power):
     slots = np.array([11, 26, 51, 101])
     steps_per_s = 3e5 / slots ** power
     assert vehicle_scaling.exponent(slots, steps_per_s) == pytest.approx(power, abs=1e-9)
+
+
+_SPLIT_ROLLOUT = """
+import json, sys
+import jax
+jax.config.update("jax_num_cpu_devices", 2)
+sys.path.insert(0, "benchmarks")
+import envs_jax
+from env_throughput import TaskAutoReset, jax_runner
+env = envs_jax.make("merge-v0")  # a traffic task: sparse_map's data-dependent loops inside each device's program
+key = jax.random.key(1)
+split = jax_runner(env, 8, 40, TaskAutoReset, devices=2)
+alone = jax_runner(env, 4, 40, TaskAutoReset, devices=1)
+halves = [int(alone(k)) for k in jax.random.split(key, 2)]
+print(json.dumps({"devices": len(jax.devices()), "split": int(split(key)), "halves": halves}))
+"""
+
+
+def test_rollout_split_over_devices_is_each_devices_own_rollout():
+    # env_throughput's --devices: with 2 CPU devices, 8 envs run as two independent 4-env roll-outs, one per
+    # device, each from its half of the key; the episode count is their sum.
+    import json
+    import subprocess
+
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    env = dict(os.environ, XLA_FLAGS="")
+    out = subprocess.run([sys.executable, "-c", _SPLIT_ROLLOUT], cwd=root, env=env, capture_output=True, text=True,
+                         timeout=600)
+    assert out.returncode == 0, out.stderr[-2000:]
+    res = json.loads(out.stdout.strip().splitlines()[-1])
+    assert res["devices"] == 2
+    # precondition: the two halves end different numbers of episodes, so a split that ran one half twice, or
+    # mixed the halves' environments, would show in the sum
+    assert res["halves"][0] != res["halves"][1], res
+    assert res["split"] == sum(res["halves"])
