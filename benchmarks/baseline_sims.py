@@ -16,7 +16,6 @@ missing instead of raising.
 
 from __future__ import annotations
 
-import contextlib
 import os
 import statistics
 import time
@@ -61,31 +60,10 @@ def highway_env_task(task: str):
     return gymnasium.make(task)
 
 
-@contextlib.contextmanager
-def highway_env_driver_constants_kept():
-    """Put back the IDM class constants that highway-env's intersection sets on every reset.
-
-    ``IntersectionEnv._make_vehicles`` assigns ``DISTANCE_WANTED``, ``COMFORT_ACC_MAX`` and ``COMFORT_ACC_MIN`` on
-    the ``IDMVehicle`` class itself, so every highway-env task run later in the same process would drive with the
-    intersection's constants.
-    """
-    from highway_env.vehicle.behavior import IDMVehicle
-
-    names = ("DISTANCE_WANTED", "COMFORT_ACC_MAX", "COMFORT_ACC_MIN")
-    saved = {n: IDMVehicle.__dict__.get(n) for n in names}
-    try:
-        yield
-    finally:
-        for n, v in saved.items():
-            if v is None:
-                if n in IDMVehicle.__dict__:
-                    delattr(IDMVehicle, n)
-            else:
-                setattr(IDMVehicle, n, v)
-
-
 def describe_highway_env(task: str) -> dict:
-    with highway_env_driver_constants_kept():
+    from tests.intersection_oracle import idm_constants_kept  # the intersection's resets change IDMVehicle
+
+    with idm_constants_kept():
         env = highway_env_task(task)
         env.reset(seed=0)
     cfg = env.unwrapped.config
@@ -97,8 +75,10 @@ def describe_highway_env(task: str) -> dict:
 
 def measure_highway_env(task: str, seconds: float, repeats: int = 3) -> dict:
     """Steps per second of highway-env on ``task``: median over ``repeats`` blocks of ``seconds / repeats``."""
+    from tests.intersection_oracle import idm_constants_kept  # the intersection's resets change IDMVehicle
+
     rates, steps_total = [], 0
-    with highway_env_driver_constants_kept():
+    with idm_constants_kept():
         env = highway_env_task(task)
         rng = np.random.default_rng(0)
         env.reset(seed=0)

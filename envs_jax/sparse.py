@@ -43,8 +43,7 @@ def sparse_map(fn, mask, *args, fraction: float = 1 / 8, min_rows: int = 64):
     leaves = [x for a in args for x in ((a.table, a.index) if isinstance(a, TableRows) else (a,))]
 
     def unbatched(mask, *leaves):
-        it = iter(leaves)
-        rows = [(lambda t, i: t[i])(next(it), next(it)) if table else next(it) for table in is_table]
+        rows = [g[0][g[1]] if table else g for table, g in zip(is_table, _regroup(is_table, leaves))]
         return _all_rows(vfn, mask, *rows)
 
     f = jax.custom_batching.custom_vmap(unbatched)
@@ -54,14 +53,20 @@ def sparse_map(fn, mask, *args, fraction: float = 1 / 8, min_rows: int = 64):
         k = mask.shape[-1]
         n = axis_size * k  # rows of the whole batch, flattened
         mask = (mask if in_batched[0] else jnp.broadcast_to(mask, (axis_size, k))).reshape(n)
-        it = iter(zip(leaves, in_batched[1:]))
-        getters = [_table_getter(*next(it), *next(it), axis_size, k) if table else _row_getter(*next(it), axis_size, k)
-                   for table in is_table]
+        groups = _regroup(is_table, list(zip(leaves, in_batched[1:])))  # (leaf, batched) per leaf
+        getters = [_table_getter(*g[0], *g[1], axis_size, k) if table else _row_getter(*g, axis_size, k)
+                   for table, g in zip(is_table, groups)]
         out = _packed(vfn, mask, lambda rows: tuple(g(rows) for g in getters), fraction, min_rows)
         out = jax.tree_util.tree_map(lambda o: o.reshape((axis_size, k) + o.shape[1:]), out)
         return out, jax.tree_util.tree_map(lambda _: True, out)
 
     return f(mask, *leaves)
+
+
+def _regroup(is_table, items):
+    """``sparse_map``'s flat leaves back into one item per argument: a pair (table, index) for a TableRows."""
+    it = iter(items)
+    return [(next(it), next(it)) if table else next(it) for table in is_table]
 
 
 def _row_getter(arg, batched, axis_size: int, k: int):

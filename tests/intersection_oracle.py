@@ -15,6 +15,8 @@ highway-env is imported here only; it must never be imported outside ``tests/``.
 
 from __future__ import annotations
 
+import contextlib
+
 import numpy as np
 from highway_env.envs.intersection_env import ContinuousIntersectionEnv, IntersectionEnv, MultiAgentIntersectionEnv
 from highway_env.vehicle.behavior import IDMVehicle
@@ -22,6 +24,18 @@ from highway_env.vehicle.behavior import IDMVehicle
 from tests.traffic_oracle import lane_numbers
 
 IDM_ATTRS = ("DISTANCE_WANTED", "COMFORT_ACC_MAX", "COMFORT_ACC_MIN")
+
+
+@contextlib.contextmanager
+def idm_constants_kept():
+    """Put back the IDM constants that highway-env's intersection assigns on the ``IDMVehicle`` class at every
+    reset (``IDM_ATTRS``): otherwise every highway-env task run later in the process drives with them."""
+    saved = {a: getattr(IDMVehicle, a) for a in IDM_ATTRS}
+    try:
+        yield
+    finally:
+        for a, v in saved.items():
+            setattr(IDMVehicle, a, v)
 
 
 class ScriptedRandom:
@@ -116,8 +130,7 @@ def run_oracle(k: int, attempts_reset: list, z_ego, destination, step_attempts: 
     (``actions`` ``[T, K, d]`` floats; the agents' lateral speed and yaw rate are recorded too, 0 for
     vehicles without them, as their missing target speed).
     """
-    saved = {a: getattr(IDMVehicle, a) for a in IDM_ATTRS}
-    try:
+    with idm_constants_kept():
         env = classes(k, continuous)(config=config)
         env.script = ScriptedRandom(list(attempts_reset) + list(step_attempts), z_ego, destination)
         env.spawn_log, env.pool_skips = [], []
@@ -173,6 +186,3 @@ def run_oracle(k: int, attempts_reset: list, z_ego, destination, step_attempts: 
         for key in ("reward", "terminated", "env_terminated", "truncated", "env_reward"):
             out[key] = np.array(out[key])
         return out
-    finally:
-        for a, v in saved.items():
-            setattr(IDMVehicle, a, v)

@@ -27,18 +27,13 @@ def test_defaults_and_bad_input():
 def test_priorities_and_routes_match_highway_env():
     """Lane priorities and planned routes against highway-env's own road and shortest_path."""
     from highway_env.envs.intersection_env import IntersectionEnv
-    from highway_env.vehicle.behavior import IDMVehicle
 
-    from tests.intersection_oracle import IDM_ATTRS
+    from tests.intersection_oracle import idm_constants_kept
     from tests.traffic_oracle import lane_numbers
 
-    saved = {a: getattr(IDMVehicle, a) for a in IDM_ATTRS}
-    try:  # the env overwrites IDMVehicle's class constants at reset
+    with idm_constants_kept():  # the env overwrites IDMVehicle's class constants at reset
         he = IntersectionEnv()
         he.reset(seed=0)
-    finally:
-        for a, v in saved.items():
-            setattr(IDMVehicle, a, v)
     net = he.road.network
     env = envs_jax.make("intersection-v0")
     numbers = lane_numbers(net)
