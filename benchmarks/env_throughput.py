@@ -40,12 +40,12 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
-from jax.sharding import Mesh, PartitionSpec  # noqa: E402
 
 import baseline_sims  # noqa: E402
 import envs_jax  # noqa: E402
 from envs_jax.sparse import reset_where  # noqa: E402
 from envs_jax.wrappers import AutoResetWrapper, random_actions  # noqa: E402
+from train.parallel import seed_parallel  # noqa: E402
 
 
 def jax_runner(env, num_envs: int, num_steps: int, wrapper=AutoResetWrapper, actions=random_actions,
@@ -59,9 +59,8 @@ def jax_runner(env, num_envs: int, num_steps: int, wrapper=AutoResetWrapper, act
     local = _rollout(wrapper(env), env.default_params, actions(env), num_envs // d, num_steps)
     if d == 1:
         return jax.jit(local)
-    mesh = Mesh(np.array(jax.devices()[:d]), ("envs",))
-    per_device = jax.shard_map(lambda keys: local(keys[0])[None], mesh=mesh, in_specs=PartitionSpec("envs"),
-                               out_specs=PartitionSpec("envs"), check_vma=False)
+    # one roll-out of num_envs / d environments per device, as the training runs split their seeds
+    per_device = seed_parallel(local, d, sequential=True)
     return jax.jit(lambda key: per_device(jax.random.split(key, d)).sum())
 
 

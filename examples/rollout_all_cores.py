@@ -7,15 +7,15 @@ python examples/rollout_all_cores.py --task merge-v0 --controlled-vehicles 3 --d
 
 XLA:CPU runs a batched program's small kernels on one thread, so a ``vmap`` over environments keeps one core
 busy. Making every core a JAX device (``jax_num_cpu_devices``) and running each device's share of the
-environments as its own program (``shard_map``) uses them all, as EnvPool runs a thread per core
-(docs/performance.md). Each environment draws from its own key, so the per-environment results do not depend on
-how many devices share the work.
+environments as its own program (``shard_map``, through ``train.parallel.seed_parallel``, which splits the
+training runs' seeds the same way) uses them all, as EnvPool runs a thread per core (docs/performance.md). Each
+environment draws from its own key, so the per-environment results do not depend on how many devices share the
+work.
 """
 
 from __future__ import annotations
 
 import argparse
-import math
 import os
 import time
 
@@ -46,11 +46,11 @@ def main(argv=None) -> dict:
     except RuntimeError:
         print(f"JAX was already running: using its {len(jax.devices())} device(s)")
     import numpy as np
-    from jax.sharding import Mesh, PartitionSpec
 
     import envs_jax
     from envs_jax.traffic_autoreset import TrafficAutoResetWrapper
     from envs_jax.wrappers import random_actions
+    from train.parallel import seed_parallel, seed_sharding
 
     if args.task not in envs_jax.available_tasks():
         raise ValueError(f"--task {args.task!r} is not a traffic task; choose one of {envs_jax.available_tasks()}")
@@ -75,10 +75,11 @@ def main(argv=None) -> dict:
         _, (reward, cost, ended, crashed) = jax.lax.scan(body, (obs, state, key), None, length=args.steps)
         return reward.sum(0), cost.sum(0), ended.sum(), crashed.sum()
 
-    devices = math.gcd(args.num_envs, min(args.devices, len(jax.devices())))  # each device runs as many envs
-    mesh = Mesh(np.array(jax.devices()[:devices]), ("envs",))
-    envs = PartitionSpec("envs")
-    run = jax.jit(jax.shard_map(jax.vmap(one_env), mesh=mesh, in_specs=envs, out_specs=envs, check_vma=False))
+    # jit(vmap(one_env)) with the environments split over the devices, each device's share its own program: the
+    # helper the training runs split their seeds with (as many devices as divide num_envs)
+    run = seed_parallel(one_env, args.num_envs)
+    sharding = seed_sharding(args.num_envs)
+    devices = 1 if sharding is None else sharding.mesh.size
     keys = jax.random.split(jax.random.key(args.seed), args.num_envs)
     t0 = time.perf_counter()
     jax.block_until_ready(run(keys))
