@@ -29,7 +29,8 @@ from envs_jax import idm
 from envs_jax import lanes as L
 from envs_jax import neighbours as N
 from envs_jax import vehicle as Veh
-from envs_jax.mobil import ObjectTable, accept, pair_acceleration
+from envs_jax.materialize import materialize
+from envs_jax.mobil import ObjectTable, accept, free_acceleration, pair_acceleration
 from envs_jax.road import Road
 from envs_jax.sparse import sparse_map
 from envs_jax.traffic_state import TrafficState
@@ -98,10 +99,13 @@ def road_act(road: Road, st: TrafficState, is_idm, is_mdp, p: idm.IDMParams, obs
     s_self = s[slot, :, slot]  # [V, 4]: the vehicle's own coordinates on its query lanes
     lat_self = lat[slot, :, slot]
     eligible = N.on_lane(lanes, query, s, lat) & valid & (jnp.arange(n_obj) != slot[:, None, None])
-    front, rear = N.front_rear(s_self, s, eligible)  # [V, 4]
+    # computed once: otherwise each consumer of a column re-runs the whole search
+    front, rear = materialize(N.front_rear(s_self, s, eligible))  # [V, 4]
 
     pad = lambda a, v: jnp.concatenate([a, jnp.full((n_obj - n_slots,), v, a.dtype)])
-    objs = ObjectTable(speed=pv, heading=ph,
+    # per object, read by every pair below (XLA would otherwise recompute the trigonometry per pair)
+    cos_h, sin_h = materialize((jnp.cos(ph), jnp.sin(ph)))
+    objs = ObjectTable(speed=pv, cos_h=cos_h, sin_h=sin_h,
                        target_speed=pad(jnp.where(controlled_class, st.target_speed, 0.0), 0.0),
                        speed_limit=pad(lanes.col("speed_limit")[st.lane], 0.0),
                        is_vehicle=is_vehicle, s_own=s[:, 0, :])
@@ -128,7 +132,10 @@ def road_act(road: Road, st: TrafficState, is_idm, is_mdp, p: idm.IDMParams, obs
     op, of = front[:, 0], rear[:, 0]
     ego = jnp.stack([lr, lr, me, rr, rr, me, me, of, of], axis=-1)
     fro = jnp.stack([lf, me, lf, rf, me, rf, op, me, op], axis=-1)
-    acc = pair_acceleration(objs, ego, fro, st.delta[:, None], p)
+    # the free-road term (a power) depends on the ego and the deciding vehicle only: four egos per row, not nine
+    free4 = materialize(free_acceleration(objs, jnp.stack([lr, me, rr, of], axis=-1), st.delta[:, None], p))
+    free = free4[:, jnp.array([0, 0, 1, 2, 2, 1, 1, 3, 3])]
+    acc = pair_acceleration(objs, ego, fro, st.delta[:, None], p, free=free)
     common = (acc[:, 6], acc[:, 7], acc[:, 8])  # me behind old preceding, old follower behind me / old preceding
     target = t1
     for q, exists, step, k in ((1, has_left, -1, 0), (2, has_right, 1, 3)):
@@ -141,7 +148,8 @@ def road_act(road: Road, st: TrafficState, is_idm, is_mdp, p: idm.IDMParams, obs
     lane_road = jnp.asarray(road.lane_road)
     abortable = acting_idm & changing & (lane_road[st.lane] == lane_road[t1])
     d = s[:, 0, :n_slots] - s_self[:, :1]  # [V, V]: lane_distance_to(v), on the vehicle's own lane
-    dv = idm.velocity_gap(st.speed[:, None], st.heading[:, None], st.speed[None, :], st.heading[None, :])
+    c, s_ = cos_h[:n_slots], sin_h[:n_slots]
+    dv = idm.velocity_gap_cs(st.speed[:, None], c[:, None], s_[:, None], st.speed[None, :], c[None, :], s_[None, :])
     d_star = idm.desired_gap(st.speed[:, None], dv, p)
     rivals = (st.alive[None, :] & controlled_class[None, :] & (slot[None, :] != slot[:, None])
               & (st.lane[None, :] != t1[:, None]) & (0 < d) & (d < d_star))
@@ -166,7 +174,7 @@ def road_act(road: Road, st: TrafficState, is_idm, is_mdp, p: idm.IDMParams, obs
     pick = lambda a: jnp.take_along_axis(a, q_final[:, None], axis=-1)[:, 0]
     steering = Veh.steering_control(lanes, final, pick(s_self), pick(lat_self), st.heading, st.speed)
     a_lane = acc[:, 6]  # me behind the preceding vehicle of my lane
-    a_target = pair_acceleration(objs, slot, pick(front), st.delta, p)
+    a_target = pair_acceleration(objs, slot, pick(front), st.delta, p, free=free4[:, 1])
     a_idm = jnp.where(st.lane != final, jnp.minimum(a_lane, a_target), a_lane)
     a_idm = jnp.clip(a_idm, -p.acc_max, p.acc_max)
     a_mdp = Veh.speed_control(st.target_speed, st.speed)

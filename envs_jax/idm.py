@@ -38,10 +38,15 @@ class IDMParams:
 
 def velocity_gap(speed_e, heading_e, speed_f, heading_f):
     """``dv = (v_ego - v_front) . direction_ego`` with ``velocity = speed * (cos, sin)`` (no slip)."""
-    ce, se = jnp.cos(heading_e), jnp.sin(heading_e)
-    dvx = speed_e * ce - speed_f * jnp.cos(heading_f)
-    dvy = speed_e * se - speed_f * jnp.sin(heading_f)
-    return dvx * ce + dvy * se
+    return velocity_gap_cs(speed_e, jnp.cos(heading_e), jnp.sin(heading_e),
+                           speed_f, jnp.cos(heading_f), jnp.sin(heading_f))
+
+
+def velocity_gap_cs(speed_e, cos_e, sin_e, speed_f, cos_f, sin_f):
+    """:func:`velocity_gap` from the headings' cosines and sines (computed once per vehicle, not per pair)."""
+    dvx = speed_e * cos_e - speed_f * cos_f
+    dvy = speed_e * sin_e - speed_f * sin_f
+    return dvx * cos_e + dvy * sin_e
 
 
 def desired_gap(speed_e, dv, p: IDMParams):
@@ -66,5 +71,10 @@ def acceleration(speed_e, target_speed_e, speed_limit_e, has_front, d, dv, delta
     the acceleration (in MOBIL, the deciding vehicle, whoever the ego is).
     """
     acc = free_acceleration(speed_e, target_speed_e, speed_limit_e, delta, p)
+    return interaction(acc, speed_e, has_front, d, dv, p)
+
+
+def interaction(free, speed_e, has_front, d, dv, p: IDMParams):
+    """:func:`acceleration` from its free-road term ``free``: minus ``a_max (desired gap / d)^2`` with a front."""
     ratio = desired_gap(speed_e, dv, p) / not_zero(jnp.where(has_front, d, 1.0))
-    return jnp.where(has_front, acc - p.comfort_acc_max * (ratio * ratio), acc)
+    return jnp.where(has_front, free - p.comfort_acc_max * (ratio * ratio), free)

@@ -20,23 +20,32 @@ class ObjectTable(NamedTuple):
     """What ``IDMVehicle.acceleration`` reads of any road object (``[N]`` unless noted)."""
 
     speed: jax.Array
-    heading: jax.Array
+    cos_h: jax.Array  # cosine of the heading
+    sin_h: jax.Array  # sine of the heading
     target_speed: jax.Array  # ``getattr(v, "target_speed", 0)``: 0 for plain vehicles
     speed_limit: jax.Array  # speed limit of the object's current lane
     is_vehicle: jax.Array  # obstacles are no ``Vehicle``: as ego they get acceleration 0
     s_own: jax.Array  # [V, N]: s_own[a, b] = longitudinal coordinate of b on vehicle a's current lane
 
 
-def pair_acceleration(objs: ObjectTable, ego, front, delta, p: idm.IDMParams):
+def free_acceleration(objs: ObjectTable, ego, delta, p: idm.IDMParams):
+    """The free-road term of ``acceleration(ego_vehicle=objs[ego])`` with the deciding vehicle's ``delta``."""
+    e = jnp.clip(ego, 0, objs.speed.shape[0] - 1)
+    return idm.free_acceleration(objs.speed[e], objs.target_speed[e], objs.speed_limit[e], delta, p)
+
+
+def pair_acceleration(objs: ObjectTable, ego, front, delta, p: idm.IDMParams, free=None):
     """``acceleration(ego_vehicle=objs[ego], front_vehicle=objs[front])``; 0 without an ego
-    (``ego < 0``) or when the ego is an obstacle; the free-road term without a front (``front < 0``)."""
+    (``ego < 0``) or when the ego is an obstacle; the free-road term without a front (``front < 0``).
+    ``free``: the pairs' :func:`free_acceleration` if already computed (it holds the power, the costly part)."""
     n_rows = objs.s_own.shape[0]
     e = jnp.clip(ego, 0, objs.speed.shape[0] - 1)
     er = jnp.clip(ego, 0, n_rows - 1)
     f = jnp.maximum(front, 0)
     d = objs.s_own[er, f] - objs.s_own[er, er]
-    dv = idm.velocity_gap(objs.speed[e], objs.heading[e], objs.speed[f], objs.heading[f])
-    acc = idm.acceleration(objs.speed[e], objs.target_speed[e], objs.speed_limit[e], front >= 0, d, dv, delta, p)
+    dv = idm.velocity_gap_cs(objs.speed[e], objs.cos_h[e], objs.sin_h[e], objs.speed[f], objs.cos_h[f], objs.sin_h[f])
+    free = free_acceleration(objs, ego, delta, p) if free is None else free
+    acc = idm.interaction(free, objs.speed[e], front >= 0, d, dv, p)
     return jnp.where((ego >= 0) & objs.is_vehicle[e], acc, 0.0)
 
 
