@@ -112,7 +112,8 @@ def jax_state(road, numbers, dead=0, rng=None) -> tuple:
 def object_table(jroad, st, lanes_of_objects=None):
     s, _ = N.coordinates_on(jroad.lanes, st.lane, st.x, st.y)
     return ObjectTable(speed=st.speed, cos_h=jnp.cos(st.heading), sin_h=jnp.sin(st.heading),
-                       target_speed=st.target_speed, speed_limit=jroad.lanes.col("speed_limit")[st.lane], is_vehicle=jnp.ones(st.x.shape, bool),
+                       target_speed=st.target_speed, speed_limit=jroad.lanes.col("speed_limit")[st.lane],
+                       is_vehicle=jnp.ones(st.x.shape, bool),
                        s_own=s)
 
 
