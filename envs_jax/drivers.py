@@ -95,7 +95,7 @@ def road_act(road: Road, st: TrafficState, is_idm, is_mdp, p: idm.IDMParams, obs
     query = jnp.stack([st.lane, left, right, t1], axis=-1)  # [V, 4]
     s, lat = N.coordinates_on(lanes, query, px, py)  # [V, 4, N]
     # materialised once: otherwise XLA recomputes the coordinates inside each consumer
-    s, lat = jax.lax.optimization_barrier((s, lat))
+    s, lat = materialize((s, lat))
     s_self = s[slot, :, slot]  # [V, 4]: the vehicle's own coordinates on its query lanes
     lat_self = lat[slot, :, slot]
     eligible = N.on_lane(lanes, query, s, lat) & valid & (jnp.arange(n_obj) != slot[:, None, None])

@@ -30,6 +30,7 @@ from envs_jax.lanes import (
     sine_offset,
     wrap_to_pi,
 )
+from envs_jax.materialize import materialize
 
 __all__ = ["locate", "circle_coords", "lane_coords", "sine_lower_bound", "SMALL_BATCH", "BOUND_SLACK_ABS",
            "BOUND_SLACK_REL"]
@@ -129,7 +130,7 @@ def _sine_family(lanes: LaneTable, px, py, heading):
     h = r["heading"] + jnp.arctan(r["amplitude"] * r["pulsation"] * jnp.cos(r["pulsation"] * s + r["phase"]))
     cost = distance_from_coords(r["length"], s, lat) + jnp.abs(wrap_to_pi(heading - h))
     # materialised once: otherwise XLA recomputes the sine in each consumer
-    cost, lat = jax.lax.optimization_barrier((cost, lat))
+    cost, lat = materialize((cost, lat))
     best, row = _first_min(cost[:, None], lanes.sine_rows, lanes.size)
     return best[0], row[0], jnp.sum(jnp.where(jnp.asarray(lanes.sine_rows) == row, lat, 0), axis=0)
 

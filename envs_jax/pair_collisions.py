@@ -12,7 +12,6 @@ travel) and, for the pairs that pass it, the separating-axis test (``sparse_map`
 
 from __future__ import annotations
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -25,33 +24,27 @@ SAT_ROWS_PER_VEHICLE = 0.25
 
 
 def pair_table(n_slots: int, n_obstacles: int, check_collisions):
-    """Static ``(a, b, checked)`` arrays of the pairs in loop order (obstacles are ``V + o``)."""
-    check = np.asarray(check_collisions, bool)
-    a, b = [], []
-    for i in range(n_slots):
-        for j in range(i + 1, n_slots):
-            a.append(i)
-            b.append(j)
-        for o in range(n_obstacles):
-            a.append(i)
-            b.append(n_slots + o)
-    a = np.asarray(a, np.int32)
-    b = np.asarray(b, np.int32)
-    checked = check[a] | np.where(b < n_slots, check[np.minimum(b, n_slots - 1)], True)
-    return a, b, checked
+    """Static ``[V, V + O]`` flags of the pairs highway-env checks: row ``i`` against column ``j > i``
+    (vehicle slots, then obstacles ``V + o``), where either side has ``check_collisions``
+    (obstacles always do). Row-major order over the table is the loop order."""
+    check = np.concatenate([np.asarray(check_collisions, bool), np.ones(n_obstacles, bool)])
+    upper = np.arange(n_slots + n_obstacles)[None, :] > np.arange(n_slots)[:, None]
+    return upper & (check[:n_slots, None] | check[None, :])
 
 
 def collide(x, y, heading, speed, alive, crashed, check_collisions, obstacles, dt):
     """Impacts ``[V, 2]``, their flags and the updated ``crashed`` after one frame's checks.
 
     ``check_collisions``: static ``[V]`` flags; ``obstacles``: ``[O, 5]`` rows
-    ``x, y, heading, length, width`` or None.
+    ``x, y, heading, length, width`` or None. Pairs are held as a dense ``[V, V + O]`` table
+    (broadcasts and reductions, no per-pair gathers or scatters).
     """
     n_slots = x.shape[0]
     dtype = x.dtype
     n_obs = 0 if obstacles is None else int(obstacles.shape[0])
-    a, b, checked = pair_table(n_slots, n_obs, check_collisions)
-    if a.size == 0:
+    n_obj = n_slots + n_obs
+    checked = pair_table(n_slots, n_obs, check_collisions)
+    if not checked.any():
         return jnp.zeros((n_slots, 2), dtype), jnp.zeros(n_slots, bool), crashed
     length = jnp.full(n_slots, Veh.LENGTH, dtype)
     width = jnp.full(n_slots, Veh.WIDTH, dtype)
@@ -63,11 +56,12 @@ def collide(x, y, heading, speed, alive, crashed, check_collisions, obstacles, d
         pv, pl, pw = cat(pv, jnp.zeros(n_obs, dtype)), cat(pl, ob[:, 3]), cat(pw, ob[:, 4])
         present = cat(present, jnp.ones(n_obs, bool))
     pose = jnp.stack([px, py, ph, pv, pl, pw], axis=-1)
-    pose_a, pose_b = pose[a], pose[b]
-    active = present[a] & present[b] & jnp.asarray(checked)
+    active = present[:n_slots, None] & present[None, :] & jnp.asarray(checked)  # [V, V + O]
 
-    def near(pa, pb):
-        return collision.near(collision.Shape.make(*pa), collision.Shape.make(*pb), dt)
+    # the bounding-circle prefilter for every pair at once (rows: the first object of the pair)
+    diagonal = jnp.sqrt(pl ** 2 + pw ** 2)
+    ends = lambda sel: collision.Shape(sel(px), sel(py), sel(pv), sel(diagonal), None, None, None)
+    close = collision.near(ends(lambda a: a[:n_slots, None]), ends(lambda a: a[None, :]), dt) & active
 
     def separating_axis(pa, pb):
         sa, sb = collision.Shape.make(*pa), collision.Shape.make(*pb)
@@ -75,26 +69,24 @@ def collide(x, y, heading, speed, alive, crashed, check_collisions, obstacles, d
         disp_b = jnp.stack([sb.vx, sb.vy]) * dt
         return collision.polygons_intersecting(sa.corners, sb.corners, disp_a, disp_b)
 
-    close = jax.vmap(near)(pose_a, pose_b) & active
     # chunks sized by the vehicles, not the pairs: each vehicle has a few close neighbours, not O(V)
-    fraction = min(1 / 32, SAT_ROWS_PER_VEHICLE * n_slots / a.size)
-    # the poses are gathered again only for the packed close pairs (pose_a/pose_b are fused into `near`)
-    rows_a, rows_b = TableRows(pose, jnp.asarray(a)), TableRows(pose, jnp.asarray(b))
-    inter, will, trans = sparse_map(separating_axis, close, rows_a, rows_b, fraction=fraction)
-    inter, will = inter & close, will & close
+    n_rows = n_slots * n_obj
+    fraction = min(1 / 32, SAT_ROWS_PER_VEHICLE * n_slots / n_rows)
+    # poses gathered only for the packed close pairs
+    flat = np.arange(n_rows, dtype=np.int32)
+    rows_a, rows_b = TableRows(pose, jnp.asarray(flat // n_obj)), TableRows(pose, jnp.asarray(flat % n_obj))
+    inter, will, trans = sparse_map(separating_axis, close.reshape(n_rows), rows_a, rows_b, fraction=fraction)
+    inter, will = inter.reshape(n_slots, n_obj), will.reshape(n_slots, n_obj)  # false where not close
 
-    b_vehicle = b < n_slots
-    b_slot = np.minimum(b, n_slots - 1)
-    hit = jnp.zeros(n_slots, bool).at[a].max(inter).at[b_slot].max(inter & b_vehicle)
-    crashed = crashed | hit
-    order = jnp.arange(a.size, dtype=jnp.int32)
-    key = jnp.where(will, order, -1)
-    last_a = jnp.full(n_slots, -1, jnp.int32).at[a].max(key)
-    last_b = jnp.full(n_slots, -1, jnp.int32).at[b_slot].max(jnp.where(b_vehicle, key, -1))
+    crashed = crashed | jnp.any(inter, axis=1) | jnp.any(inter[:, :n_slots], axis=0)
+    # a vehicle's impact is that of the last pair (loop order) involving it
+    key = jnp.where(will, jnp.asarray(flat.reshape(n_slots, n_obj)), -1)
+    last_a = jnp.max(key, axis=1)  # as the first object of the pair
+    last_b = jnp.max(key[:, :n_slots], axis=0)  # as the second
     from_a = last_a >= last_b
     last = jnp.maximum(last_a, last_b)
     c = jnp.maximum(last, 0)
-    value_a = jnp.where(jnp.asarray(b_vehicle)[c][:, None], trans[c] / 2, trans[c])
+    value_a = jnp.where((c % n_obj < n_slots)[:, None], trans[c] / 2, trans[c])
     impact = jnp.where(from_a[:, None], value_a, -trans[c] / 2)
     has_impact = last >= 0
     impact = jnp.where(has_impact[:, None], impact, 0.0)

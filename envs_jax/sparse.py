@@ -116,28 +116,60 @@ def packed_rows(vfn, mask, *args, fraction: float = 1 / 8, min_rows: int = 64):
 
 
 def _packed(vfn, mask, fetch, fraction: float, min_rows: int):
-    """:func:`packed_rows` with the arguments' rows given by ``fetch(row_indices)``."""
+    """:func:`packed_rows` with the arguments' rows given by ``fetch(row_indices)``.
+
+    The masked rows are found without a per-row rank: the mask is packed into 32-bit words, the
+    words' bit counts are summed, and each chunk locates its ``r``-th masked row by a binary search
+    over those sums and a bit select within the word, so only the word counts (``n / 32``) and the
+    chunks' own rows are touched besides one pass over the mask. Each masked row runs exactly once.
+    """
     n = mask.shape[0]
     cap = n if n <= min_rows else min(n, max(min_rows, int(n * fraction)))  # static chunk capacity
     if cap == n:  # one chunk holds every row (few envs): no packing
         return _all_rows(vfn, mask, *fetch(jnp.arange(n, dtype=jnp.int32)))
-    size = -(-n // cap) * cap
-    count = jnp.sum(mask.astype(jnp.int32))
-    # packed[r] = index of the r-th masked row (n past the last one), built once for all chunks
-    slot = jnp.where(mask, _rank(mask), size)
-    packed = jnp.full(size, n, jnp.int32).at[slot].set(jnp.arange(n, dtype=jnp.int32), mode="drop")
+    words = _words(mask)
+    counts = jax.lax.population_count(words).astype(jnp.int32)
+    ends = jax.lax.associative_scan(jnp.add, counts)  # masked rows up to and including each word
+    count = ends[-1]
     out = jax.eval_shape(lambda r: vfn(*fetch(r)), jax.ShapeDtypeStruct((n,), jnp.int32))
     out = jax.tree_util.tree_map(lambda s: jnp.zeros(s.shape, s.dtype), out)
 
     def chunk(carry):
         c, out = carry
-        rows = jax.lax.dynamic_slice(packed, (c * cap,), (cap,))
+        r = c * cap + jnp.arange(cap, dtype=jnp.int32)  # ranks of the chunk's masked rows
+        k = jnp.minimum(jnp.searchsorted(ends, r, side="right"), words.shape[0] - 1).astype(jnp.int32)
+        within = r - (ends[k] - counts[k])
+        rows = jnp.where(r < count, _select_bit(words[k], within) * words.shape[0] + k, n)
         res = vfn(*fetch(jnp.minimum(rows, n - 1)))
-        out = jax.tree_util.tree_map(lambda o, r: o.at[rows].set(r, mode="drop"), out, res)
+        out = jax.tree_util.tree_map(lambda o, v: o.at[rows].set(v, mode="drop"), out, res)
         return c + 1, out
 
     _, out = jax.lax.while_loop(lambda carry: carry[0] * cap < count, chunk, (jnp.zeros((), jnp.int32), out))
     return out
+
+
+_WORD = 32  # mask bits per word
+
+
+def _words(mask):
+    """A boolean ``[n]`` mask as ``W = ceil(n / 32)`` ``uint32`` words: bit ``i`` of word ``w`` is
+    ``mask[i W + w]`` (strided, so the packing reduces over the major axis and vectorises over the words;
+    rows are independent, so the order in which they are processed does not matter)."""
+    n_words = -(-mask.shape[0] // _WORD)
+    x = jnp.pad(mask, (0, n_words * _WORD - mask.shape[0])).reshape(_WORD, n_words).astype(jnp.uint32)
+    return jnp.sum(x << jnp.arange(_WORD, dtype=jnp.uint32)[:, None], axis=0, dtype=jnp.uint32)
+
+
+def _select_bit(word, j):
+    """Position of the ``j``-th (from 0) set bit of ``word`` (``uint32``), by halving the bit range."""
+    pos = jnp.zeros(jnp.shape(j), jnp.uint32)
+    j = j.astype(jnp.uint32)
+    for width in (16, 8, 4, 2, 1):
+        low = jax.lax.population_count((word >> pos) & jnp.uint32((1 << width) - 1))
+        up = j >= low
+        j = jnp.where(up, j - low, j)
+        pos = jnp.where(up, pos + jnp.uint32(width), pos)
+    return pos.astype(jnp.int32)
 
 
 def _all_rows(vfn, mask, *args):
@@ -146,23 +178,3 @@ def _all_rows(vfn, mask, *args):
     res = jax.lax.cond(jnp.any(mask), lambda: vfn(*args), lambda: zeros)
     return jax.tree_util.tree_map(
         lambda r: jnp.where(mask.reshape(mask.shape + (1,) * (r.ndim - 1)), r, jnp.zeros_like(r)), res)
-
-
-def _rank(mask, block: int = 32):
-    """``cumsum(mask) - 1`` for a boolean ``[n]`` mask, computed with bit counts.
-
-    XLA's CPU ``cumsum`` is a slow reduce-window; here each block of 32 flags becomes one ``uint32`` (one reduction),
-    the
-    blocks' counts are scanned (32 times fewer elements) and the rank within a block
-    is the population count of the lower bits.
-    """
-    n = mask.shape[0]
-    pad = -n % block
-    x = jnp.pad(mask, (0, pad)).reshape(-1, block).astype(jnp.uint32)
-    shift = jnp.arange(block, dtype=jnp.uint32)
-    bits = jnp.sum(x << shift, axis=1, dtype=jnp.uint32)
-    counts = jax.lax.population_count(bits).astype(jnp.int32)
-    before = jax.lax.associative_scan(jnp.add, counts) - counts  # masked rows in earlier blocks
-    lower = (jnp.uint32(1) << shift) - jnp.uint32(1)
-    within = jax.lax.population_count(bits[:, None] & lower).astype(jnp.int32)
-    return (before[:, None] + within + x.astype(jnp.int32) - 1).reshape(-1)[:n]

@@ -10,7 +10,7 @@ import pytest
 
 import envs_jax
 from envs_jax.env import sparse_map
-from envs_jax.sparse import _rank
+from envs_jax.sparse import _select_bit, _words
 
 
 def _fn(x, y):
@@ -64,11 +64,24 @@ def test_chunk_fraction_equals_dense_where(fraction):
 
 
 @pytest.mark.parametrize("n", [1, 2, 31, 32, 33, 100, 4096, 5001])
-def test_rank_equals_cumsum(n):
-    """The bit-count rank used to pack rows is ``cumsum(mask) - 1``."""
+def test_words_and_bit_select_find_every_masked_row(n):
+    """The word packing and the bit select that locate the masked rows: every masked row is found once, from
+    its rank in word order, by the same search the chunks use."""
     for p in (0.0, 0.05, 0.5, 1.0):
         m = np.random.default_rng(n).uniform(size=n) < p
-        np.testing.assert_array_equal(np.asarray(jax.jit(_rank)(jnp.asarray(m))), np.cumsum(m) - 1)
+        words = np.asarray(jax.jit(_words)(jnp.asarray(m))).astype(np.int64)
+        n_words = words.shape[0]
+        bits = (words[None, :] >> np.arange(32)[:, None]) & 1  # [32, W]
+        want = np.zeros(32 * n_words, bool)
+        want[:n] = m
+        np.testing.assert_array_equal(bits.reshape(-1), want)  # bit i of word w is row i W + w
+        counts = bits.sum(axis=0)
+        word_of = np.repeat(np.arange(n_words), counts)  # the r-th masked row in word order
+        within = np.concatenate([np.arange(c) for c in counts]) if counts.sum() else np.zeros(0, int)
+        pos = np.asarray(jax.jit(_select_bit)(jnp.asarray(words[word_of].astype(np.uint32)),
+                                              jnp.asarray(within, jnp.int32)))
+        rows = pos * n_words + word_of
+        np.testing.assert_array_equal(np.sort(rows), np.flatnonzero(m))
 
 
 @pytest.mark.parametrize("name", ["merge", pytest.param("roundabout", marks=pytest.mark.slow),  # discrete and
