@@ -148,8 +148,9 @@ def road_act(road: Road, st: TrafficState, is_idm, is_mdp, p: idm.IDMParams, obs
     lane_road = jnp.asarray(road.lane_road)
     abortable = acting_idm & changing & (lane_road[st.lane] == lane_road[t1])
     d = s[:, 0, :n_slots] - s_self[:, :1]  # [V, V]: lane_distance_to(v), on the vehicle's own lane
-    c, s_ = cos_h[:n_slots], sin_h[:n_slots]
-    dv = idm.velocity_gap_cs(st.speed[:, None], c[:, None], s_[:, None], st.speed[None, :], c[None, :], s_[None, :])
+    cos_v, sin_v = cos_h[:n_slots], sin_h[:n_slots]
+    dv = idm.velocity_gap_cs(st.speed[:, None], cos_v[:, None], sin_v[:, None],
+                             st.speed[None, :], cos_v[None, :], sin_v[None, :])
     d_star = idm.desired_gap(st.speed[:, None], dv, p)
     rivals = (st.alive[None, :] & controlled_class[None, :] & (slot[None, :] != slot[:, None])
               & (st.lane[None, :] != t1[:, None]) & (0 < d) & (d < d_star))
