@@ -149,7 +149,7 @@ def road_act(road: Road, st: TrafficState, is_idm, is_mdp, p: idm.IDMParams, obs
     abortable = acting_idm & changing & (lane_road[st.lane] == lane_road[t1])
     d = s[:, 0, :n_slots] - s_self[:, :1]  # [V, V]: lane_distance_to(v), on the vehicle's own lane
     cos_v, sin_v = cos_h[:n_slots], sin_h[:n_slots]
-    dv = idm.velocity_gap_cs(st.speed[:, None], cos_v[:, None], sin_v[:, None],
+    dv = idm.velocity_gap(st.speed[:, None], cos_v[:, None], sin_v[:, None],
                              st.speed[None, :], cos_v[None, :], sin_v[None, :])
     d_star = idm.desired_gap(st.speed[:, None], dv, p)
     rivals = (st.alive[None, :] & controlled_class[None, :] & (slot[None, :] != slot[:, None])

@@ -36,14 +36,9 @@ class IDMParams:
     lane_change_delay: float = 1.0  # LANE_CHANGE_DELAY [s]
 
 
-def velocity_gap(speed_e, heading_e, speed_f, heading_f):
-    """``dv = (v_ego - v_front) . direction_ego`` with ``velocity = speed * (cos, sin)`` (no slip)."""
-    return velocity_gap_cs(speed_e, jnp.cos(heading_e), jnp.sin(heading_e),
-                           speed_f, jnp.cos(heading_f), jnp.sin(heading_f))
-
-
-def velocity_gap_cs(speed_e, cos_e, sin_e, speed_f, cos_f, sin_f):
-    """:func:`velocity_gap` from the headings' cosines and sines (computed once per vehicle, not per pair)."""
+def velocity_gap(speed_e, cos_e, sin_e, speed_f, cos_f, sin_f):
+    """``dv = (v_ego - v_front) . direction_ego`` with ``velocity = speed * (cos, sin)`` (no slip), from the
+    headings' cosines and sines (computed once per vehicle by the caller, not once per pair)."""
     dvx = speed_e * cos_e - speed_f * cos_f
     dvy = speed_e * sin_e - speed_f * sin_f
     return dvx * cos_e + dvy * sin_e
@@ -62,19 +57,14 @@ def free_acceleration(speed_e, target_speed_e, speed_limit_e, delta, p: IDMParam
     return p.comfort_acc_max * (1 - jnp.power(jnp.maximum(speed_e, 0) / jnp.abs(not_zero(target)), delta))
 
 
-def acceleration(speed_e, target_speed_e, speed_limit_e, has_front, d, dv, delta, p: IDMParams):
-    """``IDMVehicle.acceleration(ego, front)``.
+def interaction(free, speed_e, has_front, d, dv, p: IDMParams):
+    """``IDMVehicle.acceleration(ego, front)`` from its :func:`free_acceleration` term ``free``: minus
+    ``a_max (desired gap / d)^2`` with a front.
 
     ``d`` is the lane-longitudinal gap ``ego.lane_distance_to(front)`` (measured on the
     ego's own lane), ``dv`` the :func:`velocity_gap`; both are ignored when
-    ``has_front`` is false. ``delta`` and ``p`` are those of the vehicle that *computes*
+    ``has_front`` is false. ``free``'s ``delta`` and ``p`` are those of the vehicle that *computes*
     the acceleration (in MOBIL, the deciding vehicle, whoever the ego is).
     """
-    acc = free_acceleration(speed_e, target_speed_e, speed_limit_e, delta, p)
-    return interaction(acc, speed_e, has_front, d, dv, p)
-
-
-def interaction(free, speed_e, has_front, d, dv, p: IDMParams):
-    """:func:`acceleration` from its free-road term ``free``: minus ``a_max (desired gap / d)^2`` with a front."""
     ratio = desired_gap(speed_e, dv, p) / not_zero(jnp.where(has_front, d, 1.0))
     return jnp.where(has_front, free - p.comfort_acc_max * (ratio * ratio), free)

@@ -43,7 +43,7 @@ def pair_acceleration(objs: ObjectTable, ego, front, delta, p: idm.IDMParams, fr
     er = jnp.clip(ego, 0, n_rows - 1)
     f = jnp.maximum(front, 0)
     d = objs.s_own[er, f] - objs.s_own[er, er]
-    dv = idm.velocity_gap_cs(objs.speed[e], objs.cos_h[e], objs.sin_h[e], objs.speed[f], objs.cos_h[f], objs.sin_h[f])
+    dv = idm.velocity_gap(objs.speed[e], objs.cos_h[e], objs.sin_h[e], objs.speed[f], objs.cos_h[f], objs.sin_h[f])
     free = free_acceleration(objs, ego, delta, p) if free is None else free
     acc = idm.interaction(free, objs.speed[e], front >= 0, d, dv, p)
     return jnp.where((ego >= 0) & objs.is_vehicle[e], acc, 0.0)
