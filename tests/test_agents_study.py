@@ -144,3 +144,29 @@ def test_report_from_committed_records_matches_the_committed_report(tmp_path):
         assert made == f.read()
     assert os.path.isdir(src)
     assert agents_study.main(["--from", str(tmp_path), "--out", out]) == 2
+
+
+def test_report_joins_several_folders_first_folder_wins_and_narrows_to_the_asked_runs(tmp_path, capsys):
+    pytest.importorskip("matplotlib")
+    longer, base = str(tmp_path / "longer"), str(tmp_path / "base")
+    _write(longer, "merge-v0_K2_csq-chain", _summary("csq", 2, [9.0] * 4, [0] * 4, [20] * 4))
+    _write(base, "merge-v0_K2_csq-chain", _summary("csq", 2, [1.0] * 4, [1] * 4, [20] * 4))
+    _write(base, "merge-v0_K2_macpo", _summary("macpo", 2, [3.0] * 4, [0] * 4, [20] * 4))
+    _write(base, "merge-v0_K3_macpo", _summary("macpo", 3, [3.0] * 4, [0] * 4, [20] * 4))
+    runs = agents_study.collect([longer, base])
+    assert set(runs["merge-v0"]) == {2, 3}
+    np.testing.assert_allclose(agents_study.measure(runs["merge-v0"][2]["csq-chain"], "return", 2), [9.5] * 4)
+    np.testing.assert_allclose(agents_study.measure(runs["merge-v0"][2]["macpo"], "return", 2), [3.5] * 4)
+    out = str(tmp_path / "out")
+    assert agents_study.main(["--from", longer, "--from", base, "--out", out, "--scenario", "merge-v0",
+                              "--agents", "2"]) == 0
+    text = open(os.path.join(out, "AGENTS.md")).read()
+    assert "| 2 | csq-chain | 9.50 |" in text and "| 2 | macpo | 3.50 |" in text
+    assert "| 3 |" not in text  # K = 3 was not asked for
+    missing = text.split("Not finished yet (left out of every table and figure): ")[1].split("\n")[0]
+    assert missing == "merge-v0_K2_csq-flat, merge-v0_K2_mappo-l."
+    assert f"--from {longer} --from {base} --out {out} --scenario merge-v0 --agents 2" in text
+    with pytest.raises(ValueError, match="out_dir is required"):
+        agents_study.write_report([longer, base])
+    assert agents_study.main(["--from", longer, "--out", out, "--agents", "5"]) == 2
+    assert "must be 2, 3 or 4" in capsys.readouterr().err

@@ -100,21 +100,25 @@ def plan(scenarios=SCENARIOS, agents=AGENTS, seeds: int | None = None, steps: in
     return out
 
 
-def collect(study_dir: str, items: list[dict] | None = None) -> dict[str, dict[int, dict[str, dict]]]:
-    """``{scenario: {K: {method: run}}}`` of the finished runs (summary.json says finished) of ``study_dir``."""
+def collect(study_dir, items: list[dict] | None = None) -> dict[str, dict[int, dict[str, dict]]]:
+    """``{scenario: {K: {method: run}}}`` of the finished runs (summary.json says finished) of ``study_dir``, one
+    folder or a list of them: a run is taken from the first folder where it has finished (so one report can join,
+    say, longer runs of one method with the baselines' runs of another study)."""
     import json
 
     items = plan() if items is None else items
+    dirs = [study_dir] if isinstance(study_dir, (str, os.PathLike)) else list(study_dir)
     out: dict = {}
     for it in items:
-        path = os.path.join(study_dir, "runs", it["name"], "summary.json")
-        if not os.path.exists(path):
-            continue
-        with open(path) as f:
-            summary = json.load(f)
-        if not summary.get("finished"):
-            continue
-        out.setdefault(it["scenario"], {}).setdefault(it["agents"], {})[it["method"]] = summary
+        for folder in dirs:
+            path = os.path.join(folder, "runs", it["name"], "summary.json")
+            if not os.path.exists(path):
+                continue
+            with open(path) as f:
+                summary = json.load(f)
+            if summary.get("finished"):
+                out.setdefault(it["scenario"], {}).setdefault(it["agents"], {})[it["method"]] = summary
+                break
     return out
 
 
@@ -256,8 +260,11 @@ def plot(runs: dict[int, dict[str, dict]], out_base: str, title: str = "",
 def write_report(study_dir: str, study: dict | None = None, items: list[dict] | None = None,
                  out_dir: str | None = None) -> str:
     """Draw the figures into ``out_dir/figures`` and write ``out_dir/AGENTS.md`` (default ``out_dir``: the study
-    folder) from the finished runs of ``study_dir``; returns its path."""
-    out_dir = study_dir if out_dir is None else out_dir
+    folder) from the finished runs of ``study_dir`` (one folder or a list, as :func:`collect`); returns its path."""
+    if out_dir is None:
+        if not isinstance(study_dir, (str, os.PathLike)):
+            raise ValueError("write_report: out_dir is required when the runs come from several folders")
+        out_dir = study_dir
     figs = {}
     for scenario, runs in collect(study_dir, items).items():
         paths = plot(runs, os.path.join(out_dir, "figures", f"{scenario}_agents"),
@@ -272,19 +279,32 @@ def write_report(study_dir: str, study: dict | None = None, items: list[dict] | 
 
 
 def main(argv=None) -> int:
-    """``python -m train.agents_study --from DIR --out DOCS``: AGENTS.md and its figure from committed records
-    (``DIR/runs/<name>/summary.json``), without training."""
+    """``python -m train.agents_study --from DIR [--from DIR2 ...] --out DOCS``: AGENTS.md and its figure from
+    committed records (``DIR/runs/<name>/summary.json``; a run is taken from the first folder that has it), without
+    training; ``--scenario`` and ``--agents`` narrow the report to part of the study."""
     import argparse
 
     p = argparse.ArgumentParser(prog="python -m train.agents_study", description=main.__doc__.split(":")[0])
-    p.add_argument("--from", dest="src", required=True, help="folder holding runs/<scenario>_K<k>_<method>/")
+    p.add_argument("--from", dest="src", action="append", required=True,
+                   help="folder holding runs/<scenario>_K<k>_<method>/ (repeatable: the first folder with a run wins)")
     p.add_argument("--out", required=True, help="folder for AGENTS.md and figures/")
+    p.add_argument("--scenario", action="append", choices=SCENARIOS, help="only this scenario (repeatable)")
+    p.add_argument("--agents", action="append", type=int, help="only this K (repeatable)")
     args = p.parse_args(argv)
-    if not os.path.isdir(os.path.join(args.src, "runs")):
-        print(f"error: {args.src} has no runs/ folder", file=sys.stderr)
+    for src in args.src:
+        if not os.path.isdir(os.path.join(src, "runs")):
+            print(f"error: {src} has no runs/ folder", file=sys.stderr)
+            return 2
+    try:
+        items = plan(scenarios=tuple(args.scenario or SCENARIOS), agents=tuple(args.agents or AGENTS))
+    except ValueError as e:
+        print(f"error: {e}", file=sys.stderr)
         return 2
-    cmd = f"python -m train.agents_study --from {args.src} --out {args.out}"
-    print(write_report(args.src, {"command": cmd}, out_dir=args.out))
+    cmd = ("python -m train.agents_study " + " ".join(f"--from {s}" for s in args.src) + f" --out {args.out}"
+           + "".join(f" --scenario {s}" for s in args.scenario or ())
+           + "".join(f" --agents {k}" for k in args.agents or ()))
+    src = args.src[0] if len(args.src) == 1 else args.src
+    print(write_report(src, {"command": cmd}, items=items, out_dir=args.out))
     return 0
 
 
