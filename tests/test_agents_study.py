@@ -166,6 +166,16 @@ def test_report_joins_several_folders_first_folder_wins_and_narrows_to_the_asked
     missing = text.split("Not finished yet (left out of every table and figure): ")[1].split("\n")[0]
     assert missing == "merge-v0_K2_csq-flat, merge-v0_K2_mappo-l."
     assert f"--from {longer} --from {base} --out {out} --scenario merge-v0 --agents 2" in text
+    # one budget only: the K = 3 baseline (1,000 steps) is left out at 2,000 steps, and so named
+    _write(longer, "merge-v0_K3_csq-chain", dict(_summary("csq", 3, [2.0] * 4, [0] * 4, [20] * 4),
+                                                  config={"algo": "csq", "num_seeds": 4, "total_steps": 2000}))
+    assert agents_study.main(["--from", longer, "--from", base, "--out", out, "--agents", "3", "--steps", "2000"]) == 0
+    text = open(os.path.join(out, "AGENTS.md")).read()
+    assert "| 3 | csq-chain | 3.00 |" in text and "macpo |" not in text
+    assert "No finished run of 2,000 env steps per seed (left out of every table and figure): " in text
+    assert "merge-v0_K3_macpo" in text.split("No finished run")[1].split("\n")[0]
+    assert agents_study.main(["--from", longer, "--out", out, "--steps", "0"]) == 2
+    assert "--steps must be a positive" in capsys.readouterr().err
     with pytest.raises(ValueError, match="out_dir is required"):
         agents_study.write_report([longer, base])
     assert agents_study.main(["--from", longer, "--out", out, "--agents", "5"]) == 2
