@@ -14,6 +14,7 @@ import jax.numpy as jnp
 
 from envs_jax import lane_locate as LL
 from envs_jax import lanes as L
+from envs_jax.materialize import materialize
 
 MARGIN = 1.0  # lateral margin of the on-lane test [m]
 
@@ -46,17 +47,20 @@ def front_rear(s_ego, s, on):
     One pass over the objects in list order keeps the best so far, elementwise over ``[...]``:
     XLA fuses the unrolled chain into one loop, where reductions along the short object axis
     would each run as a separate, poorly vectorised loop. A later object at the same ``s``
-    replaces the front (the last one wins) but not the rear (the first one wins).
+    replaces the front (the last one wins) but not the rear (the first one wins). The
+    eligibility is folded into the coordinates once (NaN where not eligible: every comparison
+    with it is false), so each step of the pass reads one array and evaluates no on-lane test.
     """
     s_ego = jnp.asarray(s_ego)
+    s = materialize(jnp.where(on, s, jnp.nan))
     best_front = jnp.full(s_ego.shape, jnp.inf, s.dtype)
     best_rear = jnp.full(s_ego.shape, -jnp.inf, s.dtype)
     front = jnp.full(s_ego.shape, -1, jnp.int32)
     rear = jnp.full(s_ego.shape, -1, jnp.int32)
     for j in range(s.shape[-1]):
-        s_j, on_j = s[..., j], on[..., j]
-        ahead = on_j & (s_ego <= s_j) & (s_j <= best_front)
-        behind = on_j & (s_j < s_ego) & ((s_j > best_rear) | (rear < 0))
+        s_j = s[..., j]
+        ahead = (s_ego <= s_j) & (s_j <= best_front)
+        behind = (s_j < s_ego) & ((s_j > best_rear) | (rear < 0))
         best_front, front = jnp.where(ahead, s_j, best_front), jnp.where(ahead, j, front)
         best_rear, rear = jnp.where(behind, s_j, best_rear), jnp.where(behind, j, rear)
     return front, rear
