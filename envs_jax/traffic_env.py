@@ -32,6 +32,7 @@ from envs_jax import drivers, kinematic_obs, pair_collisions
 from envs_jax import lane_locate as LL
 from envs_jax import lanes as L
 from envs_jax import vehicle as Veh
+from envs_jax.chunks import in_chunks
 from envs_jax.idm import IDMParams
 from envs_jax.road import Road
 from envs_jax.time_limit import step_limit
@@ -59,6 +60,7 @@ class Task:
     simulation_frequency: int = 15
     policy_frequency: int = 1
     route_length: int = 1
+    batch_chunk: int | None = None  # environments a batched step runs at once on the CPU (envs_jax/chunks.py)
     obs_config: kinematic_obs.KinematicsConfig = kinematic_obs.KinematicsConfig()
     check_collisions: Any = None  # static [V] flags (None: all)
     obs_range_lanes: Any = None  # static [K] lane counts of the default observation y range (None: current road)
@@ -101,7 +103,9 @@ class TrafficEnv:
         self.action_shape = (self.num_agents,)
         self.obs_shape = (self.num_agents,) + self.obs_config.shape
         self._reset_jit = jax.jit(self._reset)
-        self._step_jit = jax.jit(lambda key, state, action, params: self._step(key, state, action, params, False))
+        step = in_chunks(lambda key, state, action, params: self._step(key, state, action, params, False),
+                         task.batch_chunk)
+        self._step_jit = jax.jit(step)
         self._substeps_jit = jax.jit(lambda key, state, action, params: self._step(key, state, action, params, True))
 
     def __repr__(self):

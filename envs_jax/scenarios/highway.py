@@ -45,6 +45,7 @@ from envs_jax.traffic_env import Task, TrafficEnv, TrafficParams
 
 C, S, N = L.LINE_CONTINUOUS_LINE, L.LINE_STRIPED, L.LINE_NONE
 LANE_LENGTH = 10000.0
+CHUNK_SLOTS = 2048  # vehicle slots a batched step handles at once on the CPU
 SPEED_LIMIT = 30.0
 EGO_SPEED = 25.0
 
@@ -75,7 +76,7 @@ DEFAULTS = {
 DEFAULTS["highway-fast-v0"] = dict(DEFAULTS["highway-v0"], simulation_frequency=5, lanes_count=3,
                                    vehicles_count=20, duration=30, ego_spacing=1.5)
 STATIC_KEYS = ("simulation_frequency", "policy_frequency", "lanes_count", "vehicles_count", "controlled_vehicles")
-OWN_KEYS = ("num_slots", "collision_cost", "idm", "on_road_reward")
+OWN_KEYS = ("num_slots", "collision_cost", "idm", "on_road_reward", "batch_chunk")
 
 
 def near_split(x: int, num_bins: int) -> list:
@@ -94,6 +95,13 @@ def build_road(lanes_count: int):
     return net.freeze()
 
 
+def default_batch_chunk(num_slots: int) -> int:
+    """Environments a batched step runs at once on the CPU: the largest power of two with at most
+    ``CHUNK_SLOTS`` vehicle slots (32 for ``highway-v0``), so that their neighbour search stays in the cache
+    (docs/performance.md, "Large batches in chunks")."""
+    return 1 << max(0, (CHUNK_SLOTS // num_slots).bit_length() - 1)
+
+
 class Highway(Task):
     """The highway task for a given static layout."""
 
@@ -101,7 +109,7 @@ class Highway(Task):
 
     def __init__(self, name: str, lanes_count: int, vehicles_count: int, controlled_vehicles: int,
                  num_slots: int, simulation_frequency: int, policy_frequency: int,
-                 obs_config: kinematic_obs.KinematicsConfig):
+                 obs_config: kinematic_obs.KinematicsConfig, batch_chunk: int | None = None):
         self.name = name
         self.lanes_count = lanes_count
         self.road = build_road(lanes_count)
@@ -115,6 +123,7 @@ class Highway(Task):
             slot += 1 + n
         self.num_vehicles = slot
         self.num_slots = num_slots
+        self.batch_chunk = batch_chunk
         self.controlled = tuple(controlled)
         is_controlled = np.zeros(num_slots, bool)
         is_controlled[controlled] = True
@@ -209,8 +218,10 @@ def make_highway(name: str, env_config: dict | None = None, **overrides) -> Traf
 
     Keywords are highway-env config keys (``controlled_vehicles=3``, ``vehicles_count``, ``lanes_count``,
     ``duration``, ``observation``, ``action``, the reward keys, ...) plus ``num_slots`` (vehicle slots,
-    >= controlled_vehicles + vehicles_count; the extra ones stay empty), ``collision_cost`` and ``idm``
-    (an :class:`~envs_jax.idm.IDMParams` or a dict of its fields). Unknown keys or bad values raise
+    >= controlled_vehicles + vehicles_count; the extra ones stay empty), ``collision_cost``, ``idm``
+    (an :class:`~envs_jax.idm.IDMParams` or a dict of its fields) and ``batch_chunk`` (environments a batched
+    step runs at once on the CPU, None: the whole batch; default :func:`default_batch_chunk`; the results do not
+    depend on it). Unknown keys or bad values raise
     ``ValueError`` naming them and what is allowed.
     """
     cfg = dict(DEFAULTS[name])
@@ -235,7 +246,12 @@ def make_highway(name: str, env_config: dict | None = None, **overrides) -> Traf
     for key in ("normalize_reward", "offroad_terminal"):
         flag_value(name, key, cfg[key])
     idm = idm_params(name, cfg.get("idm"))
-    task = Highway(name, lanes_count, vehicles_count, k, num_slots, sim, pol, obs_cfg)
+    chunk = cfg.get("batch_chunk", default_batch_chunk(num_slots))
+    if chunk is not None and (isinstance(chunk, bool) or not isinstance(chunk, (int, np.integer)) or chunk < 1):
+        raise ValueError(f"{name}: batch_chunk must be None (the whole batch at once) or an integer >= 1, "
+                         f"got {chunk!r}")
+    chunk = None if chunk is None else int(chunk)
+    task = Highway(name, lanes_count, vehicles_count, k, num_slots, sim, pol, obs_cfg, chunk)
     params = HighwayParams(
         duration=number_value(name, "duration", cfg["duration"], positive=True),
         collision_cost=cost_value(name, "collision_cost", cfg.get("collision_cost", 5.0)),
