@@ -220,8 +220,8 @@ def make_highway(name: str, env_config: dict | None = None, **overrides) -> Traf
     ``duration``, ``observation``, ``action``, the reward keys, ...) plus ``num_slots`` (vehicle slots,
     >= controlled_vehicles + vehicles_count; the extra ones stay empty), ``collision_cost``, ``idm``
     (an :class:`~envs_jax.idm.IDMParams` or a dict of its fields) and ``batch_chunk`` (environments a batched
-    step runs at once on the CPU, None: the whole batch; default :func:`default_batch_chunk`; the results do not
-    depend on it). Unknown keys or bad values raise
+    step runs at once on the CPU, None: the whole batch; default :func:`default_batch_chunk`; results are the whole
+    batch's up to last-bit rounding). Unknown keys or bad values raise
     ``ValueError`` naming them and what is allowed.
     """
     cfg = dict(DEFAULTS[name])
