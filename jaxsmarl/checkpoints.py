@@ -22,11 +22,14 @@ import logging
 import os
 import shutil
 import sys
+import time
 from typing import Any, Callable
 
 import jax
 import numpy as np
 import orbax.checkpoint as ocp
+
+_REMOVE_TRIES = 10  # attempts to delete a failed save's temporary folder (about 1 s in all)
 
 __all__ = ["Checkpointer", "CheckpointError", "CheckpointWriteError", "state_digest", "INTEGRITY_KEY"]
 
@@ -167,14 +170,22 @@ class Checkpointer:
             return []
 
     def _remove_unfinished(self, step: int) -> None:
-        """Delete the temporary folder a failed save of ``step`` left (frees the space it took)."""
+        """Delete the temporary folder a failed save of ``step`` left (frees the space it took). orbax's writer
+        threads may still be closing files in it when the error arrives, so the removal is retried a few times."""
         try:
-            names = os.listdir(self.directory)
-        except OSError:
-            return
-        for name in names:
-            if name.startswith(f"{step}.orbax-checkpoint-tmp"):
+            self._manager.wait_until_finished()
+        except Exception:  # noqa: BLE001 - the save's own error is the one reported
+            pass
+        for attempt in range(_REMOVE_TRIES):
+            try:
+                left = [n for n in os.listdir(self.directory) if n.startswith(f"{step}.orbax-checkpoint-tmp")]
+            except OSError:
+                return
+            if not left:
+                return
+            for name in left:
                 shutil.rmtree(os.path.join(self.directory, name), ignore_errors=True)
+            time.sleep(0.02 * (attempt + 1))
 
     def latest_step(self) -> int | None:
         """The newest complete checkpoint's step, or None (complete: fully written; see :meth:`restore` for
