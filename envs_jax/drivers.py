@@ -26,13 +26,14 @@ import jax
 import jax.numpy as jnp
 
 from envs_jax import idm
+from envs_jax import lane_locate as LL
 from envs_jax import lanes as L
 from envs_jax import neighbours as N
 from envs_jax import vehicle as Veh
 from envs_jax.materialize import materialize
 from envs_jax.mobil import ObjectTable, accept, free_acceleration, pair_acceleration
 from envs_jax.road import Road
-from envs_jax.sparse import sparse_map
+from envs_jax.sparse import grouped_rows, sparse_map
 from envs_jax.traffic_state import TrafficState
 
 
@@ -70,6 +71,12 @@ def objects(st: TrafficState, obstacles):
             jnp.concatenate([st.alive, jnp.ones(ox.shape, bool)]))
 
 
+def decision_rows(n_slots: int) -> int:
+    """Drivers whose lane-change work runs at once on a frame (:func:`~envs_jax.sparse.grouped_rows`): every
+    slot on small roads; a quarter of them with many, since a timer fires about once a second per driver."""
+    return n_slots if n_slots <= 12 else -(-n_slots // 4)
+
+
 def road_act(road: Road, st: TrafficState, is_idm, is_mdp, p: idm.IDMParams, obstacles=None) -> TrafficState:
     """One frame of ``road.act()``: new target lanes, route pointers, timers and stored actions.
 
@@ -91,16 +98,37 @@ def road_act(road: Road, st: TrafficState, is_idm, is_mdp, p: idm.IDMParams, obs
     px, py, ph, pv, valid = objects(st, obstacles)
     n_obj = px.shape[0]
     is_vehicle = jnp.arange(n_obj) < n_slots
+    circles = LL.circle_coords(lanes, px, py)  # [N, C]: read by every lane below, computed once
+    circles = materialize(circles) if circles[0].size else circles
+    not_self = jnp.arange(n_obj) != slot[:, None]
     left, right, has_left, has_right = side_lanes(road, st.lane)
-    query = jnp.stack([st.lane, left, right, t1], axis=-1)  # [V, 4]
-    s, lat = N.coordinates_on(lanes, query, px, py)  # [V, 4, N]
-    # materialised once: otherwise XLA recomputes the coordinates inside each consumer
-    s, lat = materialize((s, lat))
-    s_self = s[slot, :, slot]  # [V, 4]: the vehicle's own coordinates on its query lanes
-    lat_self = lat[slot, :, slot]
-    eligible = N.on_lane(lanes, query, s, lat) & valid & (jnp.arange(n_obj) != slot[:, None, None])
-    # computed once: otherwise each consumer of a column re-runs the whole search
-    front, rear = materialize(N.front_rear(s_self, s, eligible))  # [V, 4]
+
+    def rows_of(r):
+        """The drivers ``r`` (``[G]`` slots; None: every slot, without gathers) and a function taking their rows."""
+        return (slot, lambda a: a) if r is None else (r, lambda a: a[r])
+
+    def search(r):
+        """Every object on the own, left, right and target lanes of the drivers ``r`` (see :func:`rows_of`): the
+        query lanes ``[G, 4]``, the coordinates ``[G, 4, N]`` and the front and rear objects ``[G, 4]``."""
+        me, take = rows_of(r)
+        query = jnp.stack([take(st.lane), take(left), take(right), take(t1)], axis=-1)
+        # materialised once: otherwise XLA recomputes the coordinates inside each consumer
+        s, lat = materialize(N.coordinates_on(lanes, query, px, py, circles))
+        on = N.on_lane(lanes, query, s, lat) & valid & take(not_self)[:, None, :]
+        g = jnp.arange(me.shape[0])
+        front, rear = materialize(N.front_rear(s[g, :, me], s, on))  # computed once, not per consumer
+        return query, s, lat, front, rear
+
+    # a few drivers decide on a frame (their timer fired, or they are changing lanes): on a road of many slots,
+    # every vehicle's own lane here and the side and target lanes only for them (``deciding`` below)
+    grouped = decision_rows(n_slots) < n_slots
+    if grouped:
+        s_own, lat_own = materialize(N.coordinates_on(lanes, st.lane, px, py, circles))  # [V, N]
+        eligible = N.on_lane(lanes, st.lane, s_own, lat_own) & valid & not_self
+        front_own = materialize(N.front_rear(s_own[slot, slot], s_own, eligible)[0])
+    else:
+        found = search(None)
+        s_own, front_own = found[1][:, 0], found[3][:, 0]
 
     pad = lambda a, v: jnp.concatenate([a, jnp.full((n_obj - n_slots,), v, a.dtype)])
     # per object, read by every pair below (XLA would otherwise recompute the trigonometry per pair)
@@ -108,7 +136,9 @@ def road_act(road: Road, st: TrafficState, is_idm, is_mdp, p: idm.IDMParams, obs
     objs = ObjectTable(speed=pv, cos_h=cos_h, sin_h=sin_h,
                        target_speed=pad(jnp.where(controlled_class, st.target_speed, 0.0), 0.0),
                        speed_limit=pad(lanes.col("speed_limit")[st.lane], 0.0),
-                       is_vehicle=is_vehicle, s_own=s[:, 0, :])
+                       is_vehicle=is_vehicle, s_own=s_own)
+    free_me = materialize(free_acceleration(objs, slot, st.delta, p))  # a power, read by several pairs
+    a_lane = pair_acceleration(objs, slot, front_own, st.delta, p, free=free_me)  # me behind my lane's front
 
     # MOBIL, at the timer's pace, when no lane change is ongoing
     changing = st.lane != t1
@@ -120,40 +150,62 @@ def road_act(road: Road, st: TrafficState, is_idm, is_mdp, p: idm.IDMParams, obs
     fixes_lane = has_route & (route_id >= 0)
     lane_id = jnp.asarray(road.lane_id)[st.lane]
     moving = jnp.abs(st.speed) >= 1
-
-    def reachable(q):
-        lane_q = query[:, q]
-        return ((jnp.abs(lat_self[:, q]) <= 2 * lanes.col("width")[lane_q]) & (0 <= s_self[:, q])
-                & (s_self[:, q] < lanes.col("length")[lane_q] + L.VEHICLE_LENGTH)
-                & ~jnp.asarray(lanes.forbidden)[lane_q])
-
-    # every acceleration MOBIL compares, for both side lanes, in one batch: (ego, front) pairs
-    me, lf, lr, rf, rr = slot, front[:, 1], rear[:, 1], front[:, 2], rear[:, 2]
-    op, of = front[:, 0], rear[:, 0]
-    ego = jnp.stack([lr, lr, me, rr, rr, me, me, of, of], axis=-1)
-    fro = jnp.stack([lf, me, lf, rf, me, rf, op, me, op], axis=-1)
-    # the free-road term (a power) depends on the ego and the deciding vehicle only: four egos per row, not nine
-    free4 = materialize(free_acceleration(objs, jnp.stack([lr, me, rr, of], axis=-1), st.delta[:, None], p))
-    free = free4[:, jnp.array([0, 0, 1, 2, 2, 1, 1, 3, 3])]
-    acc = pair_acceleration(objs, ego, fro, st.delta[:, None], p, free=free)
-    common = (acc[:, 6], acc[:, 7], acc[:, 8])  # me behind old preceding, old follower behind me / old preceding
-    target = t1
-    for q, exists, step, k in ((1, has_left, -1, 0), (2, has_right, 1, 3)):
-        target_id = jnp.asarray(road.lane_id)[target]
-        ok = accept(acc[:, k], acc[:, k + 1], acc[:, k + 2], *common, lane_id + step, target_id,
-                    fixes_lane, route_id, p)
-        target = jnp.where(gate & exists & reachable(q) & moving & ok, query[:, q], target)
-
-    # abort rule: another (controlled-class) vehicle is changing into the same lane, within the desired gap
     lane_road = jnp.asarray(road.lane_road)
     abortable = acting_idm & changing & (lane_road[st.lane] == lane_road[t1])
-    d = s[:, 0, :n_slots] - s_self[:, :1]  # [V, V]: lane_distance_to(v), on the vehicle's own lane
     cos_v, sin_v = cos_h[:n_slots], sin_h[:n_slots]
-    dv = idm.velocity_gap(st.speed[:, None], cos_v[:, None], sin_v[:, None],
-                             st.speed[None, :], cos_v[None, :], sin_v[None, :])
-    d_star = idm.desired_gap(st.speed[:, None], dv, p)
-    rivals = (st.alive[None, :] & controlled_class[None, :] & (slot[None, :] != slot[:, None])
-              & (st.lane[None, :] != t1[:, None]) & (0 < d) & (d < d_star))
+
+    def deciding(r, found):
+        """The lane-change work of the drivers ``r`` (see :func:`rows_of`) from their :func:`search`: MOBIL's
+        choice where the timer fired, the rivals of the abort rule and the IDM acceleration behind the front
+        vehicle of the chosen lane."""
+        me, take = rows_of(r)
+        query, s, lat, front, rear = found
+        g = jnp.arange(me.shape[0])
+        s_self, lat_self = s[g, :, me], lat[g, :, me]  # [G, 4]: the vehicle's own coordinates on its query lanes
+
+        def reachable(q):
+            lane_q = query[:, q]
+            return ((jnp.abs(lat_self[:, q]) <= 2 * lanes.col("width")[lane_q]) & (0 <= s_self[:, q])
+                    & (s_self[:, q] < lanes.col("length")[lane_q] + L.VEHICLE_LENGTH)
+                    & ~jnp.asarray(lanes.forbidden)[lane_q])
+
+        # every acceleration MOBIL compares, for both side lanes, in one batch: (ego, front) pairs
+        lf, lr, rf, rr = front[:, 1], rear[:, 1], front[:, 2], rear[:, 2]
+        op, of = front[:, 0], rear[:, 0]
+        ego = jnp.stack([lr, lr, me, rr, rr, me, of, of], axis=-1)
+        fro = jnp.stack([lf, me, lf, rf, me, rf, me, op], axis=-1)
+        delta = take(st.delta)[:, None]
+        # the free-road term (a power) depends on the ego and the deciding vehicle only: four egos per row
+        free4 = materialize(free_acceleration(objs, jnp.stack([lr, rr, of], axis=-1), delta, p))
+        f_lr, f_rr, f_of, f_me = free4[:, 0], free4[:, 1], free4[:, 2], take(free_me)
+        free = jnp.stack([f_lr, f_lr, f_me, f_rr, f_rr, f_me, f_of, f_of], axis=-1)
+        acc = pair_acceleration(objs, ego, fro, delta, p, free=free)
+        common = (take(a_lane), acc[:, 6], acc[:, 7])  # me behind old preceding, old follower behind me / old preceding
+        target = take(t1)
+        for q, exists, step, k in ((1, has_left, -1, 0), (2, has_right, 1, 3)):
+            target_id = jnp.asarray(road.lane_id)[target]
+            ok = accept(acc[:, k], acc[:, k + 1], acc[:, k + 2], *common, take(lane_id) + step, target_id,
+                        take(fixes_lane), take(route_id), p)
+            target = jnp.where(take(gate) & take(exists) & reachable(q) & take(moving) & ok, query[:, q], target)
+
+        # abort rule: another (controlled-class) vehicle is changing into the same lane, within the desired gap
+        d = take(s_own)[:, :n_slots] - s_self[:, :1]  # [G, V]: lane_distance_to(v), on the vehicle's own lane
+        dv = idm.velocity_gap(take(st.speed)[:, None], take(cos_v)[:, None], take(sin_v)[:, None],
+                              st.speed[None, :], cos_v[None, :], sin_v[None, :])
+        d_star = idm.desired_gap(take(st.speed)[:, None], dv, p)
+        rivals = (st.alive[None, :] & controlled_class[None, :] & (slot[None, :] != me[:, None])
+                  & (st.lane[None, :] != take(t1)[:, None]) & (0 < d) & (d < d_star))
+        q_target = jnp.argmax(query == target[:, None], axis=-1)
+        front_target = jnp.take_along_axis(front, q_target[:, None], axis=-1)[:, 0]
+        a_target = pair_acceleration(objs, me, front_target, take(st.delta), p, free=take(free_me))
+        return target, rivals, a_target
+
+    if grouped:
+        target, rivals, a_target = grouped_rows(lambda r: deciding(r, search(r)), gate | (acting_idm & changing),
+                                                decision_rows(n_slots))
+    else:
+        target, rivals, a_target = deciding(None, found)
+    target = jnp.where(gate, target, t1)
     before = slot[None, :] < slot[:, None]
     base = jnp.where(acting_idm, target, jnp.where(follows, t1, t0))
 
@@ -171,11 +223,8 @@ def road_act(road: Road, st: TrafficState, is_idm, is_mdp, p: idm.IDMParams, obs
     final, _ = jax.lax.while_loop(lambda c: c[1], body, (first, jnp.any(first != base)))
 
     # low-level commands
-    q_final = jnp.argmax(query == final[:, None], axis=-1)
-    pick = lambda a: jnp.take_along_axis(a, q_final[:, None], axis=-1)[:, 0]
-    steering = Veh.steering_control(lanes, final, pick(s_self), pick(lat_self), st.heading, st.speed)
-    a_lane = acc[:, 6]  # me behind the preceding vehicle of my lane
-    a_target = pair_acceleration(objs, slot, pick(front), st.delta, p, free=free4[:, 1])
+    s_final, lat_final = LL.lane_coords(lanes, st.x, st.y, (circles[0][:n_slots], circles[1][:n_slots]), final)
+    steering = Veh.steering_control(lanes, final, s_final, lat_final, st.heading, st.speed)
     a_idm = jnp.where(st.lane != final, jnp.minimum(a_lane, a_target), a_lane)
     a_idm = jnp.clip(a_idm, -p.acc_max, p.acc_max)
     a_mdp = Veh.speed_control(st.target_speed, st.speed)

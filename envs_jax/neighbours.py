@@ -19,12 +19,14 @@ from envs_jax.materialize import materialize
 MARGIN = 1.0  # lateral margin of the on-lane test [m]
 
 
-def coordinates_on(lanes: L.LaneTable, query_lane, px, py):
+def coordinates_on(lanes: L.LaneTable, query_lane, px, py, circles=None):
     """``lane.local_coordinates`` of every object ``(px, py)`` (``[N]``) on the lanes ``query_lane``
-    (any shape ``[...]``): ``(s, lat)`` of shape ``[..., N]``."""
+    (any shape ``[...]``): ``(s, lat)`` of shape ``[..., N]``. ``circles``: the objects'
+    :func:`~envs_jax.lane_locate.circle_coords`, if already computed."""
     q = jnp.asarray(query_lane)[..., None]
     shape = q.shape[:-1] + px.shape
-    circles = LL.circle_coords(lanes, px, py)  # [N, C]: once per object, not per query lane
+    if circles is None:
+        circles = LL.circle_coords(lanes, px, py)  # [N, C]: once per object, not per query lane
     # lane rows gathered per query lane ([..., 1]) and broadcast over the objects; only the
     # lane families the road has (a straight road costs no trigonometry)
     s, lat = LL.lane_coords(lanes, px, py, circles, q)

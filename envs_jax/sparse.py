@@ -7,6 +7,8 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
+from envs_jax.materialize import materialize
+
 
 class TableRows(NamedTuple):
     """A row argument of :func:`sparse_map` given as rows of a table: row ``k`` is ``table[index[k]]``.
@@ -178,3 +180,45 @@ def _all_rows(vfn, mask, *args):
     res = jax.lax.cond(jnp.any(mask), lambda: vfn(*args), lambda: zeros)
     return jax.tree_util.tree_map(
         lambda r: jnp.where(mask.reshape(mask.shape + (1,) * (r.ndim - 1)), r, jnp.zeros_like(r)), res)
+
+
+def grouped_rows(fn, mask, size: int):
+    """``fn`` on the rows of one environment where ``mask`` (``[n]``), ``size`` rows at a time; zeros elsewhere.
+
+    ``fn(rows)`` takes ``size`` row indices (``[size]`` ints) and returns a pytree of ``[size, ...]`` arrays, one
+    entry per index; it may read anything of the environment (a closure), which :func:`sparse_map`'s rows may not.
+    For per-row work that only a few of an environment's rows need on a frame (MOBIL's lane-change decisions of the
+    drivers whose timer fired): the masked rows are numbered in order, the first ``size`` run at once, and a
+    ``while_loop`` runs further groups only when more rows are masked (under ``vmap``: only when some environment of
+    the batch has more). With ``size >= n`` it is ``fn`` on every row. Rows must be independent: a row's result
+    may not depend on which others share its group.
+    """
+    n = mask.shape[0]
+    every = jnp.arange(n, dtype=jnp.int32)
+    if size >= n:
+        out = fn(every)
+        return jax.tree_util.tree_map(lambda r: jnp.where(_column(mask, r), r, jnp.zeros_like(r)), out)
+    rank = jnp.cumsum(mask.astype(jnp.int32)) - 1  # order of each masked row among the masked rows
+    count = rank[-1] + 1
+    slots = jnp.arange(size, dtype=jnp.int32)
+
+    def run(g, out):
+        lo = g * size
+        hit = mask[None, :] & (rank[None, :] == lo + slots[:, None])  # [size, n]: group entry -> row
+        rows = jnp.where(jnp.any(hit, axis=1), jnp.argmax(hit, axis=1).astype(jnp.int32), 0)
+        res = materialize(fn(rows))  # computed once, not once per row reading it
+        mine = mask & (rank >= lo) & (rank < lo + size)
+        entry = jnp.clip(rank - lo, 0, size - 1)
+        return jax.tree_util.tree_map(lambda o, r: jnp.where(_column(mine, o), r[entry], o), out, res)
+
+    shapes = jax.eval_shape(fn, slots)
+    out = jax.tree_util.tree_map(lambda s: jnp.zeros((n,) + s.shape[1:], s.dtype), shapes)
+    out = run(0, out)
+    _, out = jax.lax.while_loop(lambda c: c[0] * size < count, lambda c: (c[0] + 1, run(c[0], c[1])),
+                                (jnp.ones((), jnp.int32), out))
+    return out
+
+
+def _column(mask, like):
+    """``mask`` (``[n]``) shaped to broadcast against ``like`` (``[n, ...]``)."""
+    return mask.reshape(mask.shape + (1,) * (like.ndim - 1))

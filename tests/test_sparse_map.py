@@ -10,7 +10,7 @@ import pytest
 
 import envs_jax
 from envs_jax.env import sparse_map
-from envs_jax.sparse import _select_bit, _words
+from envs_jax.sparse import _select_bit, _words, grouped_rows
 
 
 def _fn(x, y):
@@ -143,3 +143,26 @@ def test_reset_where_equals_the_dense_reset_where_done(name):
     one = jax.jit(lambda d: reset_where(env.reset, d, key, params))
     np.testing.assert_allclose(np.asarray(one(jnp.array(True))[0]), np.asarray(obs), rtol=1e-6, atol=1e-6)
     assert not np.any(np.asarray(one(jnp.array(False))[0]))
+
+
+@pytest.mark.parametrize("size", [1, 3, 8, 20])
+def test_grouped_rows_equals_dense_where(size):
+    """Each environment's masked rows, ``size`` at a time (one group, several, or every row at once), give
+    ``fn`` on every row where masked and zeros elsewhere, batched and unbatched; ``fn`` reads the whole
+    environment (its closure), as the drivers' lane-change work does."""
+    k1, k2 = jax.random.split(jax.random.PRNGKey(size))
+    x = jax.random.normal(k1, (50, 12, 3))
+    mask = jax.random.uniform(k2, (50, 12)) < jnp.linspace(0.0, 1.0, 50)[:, None]  # none ... every row masked
+
+    def one_env(m, a):
+        def fn(rows):
+            return {"y": jnp.sin(a[rows]) * jnp.sum(a), "k": rows * 2}
+        return grouped_rows(fn, m, size)
+
+    got = jax.jit(jax.vmap(one_env))(mask, x)
+    want_y = jnp.where(mask[..., None], jnp.sin(x) * jnp.sum(x, axis=(1, 2))[:, None, None], 0)
+    want_k = jnp.where(mask, jnp.arange(12) * 2, 0)
+    np.testing.assert_allclose(np.asarray(got["y"]), np.asarray(want_y), rtol=1e-6, atol=1e-6)
+    np.testing.assert_array_equal(np.asarray(got["k"]), np.asarray(want_k))
+    alone = jax.jit(one_env)(mask[30], x[30])
+    np.testing.assert_allclose(np.asarray(alone["y"]), np.asarray(want_y[30]), rtol=1e-6, atol=1e-6)

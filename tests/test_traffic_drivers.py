@@ -205,14 +205,19 @@ def test_mobil(road_name, x64):
     assert 0.1 < np.mean(outcomes) < 0.9  # both answers occur
 
 
+@pytest.mark.parametrize("group", ["default", 1, "every"])
 @pytest.mark.parametrize("lanes,dead", [(3, 0), (4, 3)])
-def test_road_act(lanes, dead, x64):
+def test_road_act(lanes, dead, group, x64, monkeypatch):
     """A frame of ``Road.act()``: target lanes, timers and commands of every vehicle, in list order.
 
     Dense traffic with vehicles mid-lane-change makes the abort rule fire, including cases
     where an earlier vehicle's decision of the same frame changes a later one's. Empty
-    slots (``dead``, one of them on top of a vehicle) must change nothing.
+    slots (``dead``, one of them on top of a vehicle) must change nothing. About half the
+    drivers decide on each frame here, so the deciding drivers' groups (``group`` at a time:
+    the default quarter of the slots, one, or every slot at once) overflow into further rounds.
     """
+    if group != "default":
+        monkeypatch.setattr(drivers, "decision_rows", lambda n: n if group == "every" else group)
     rng = np.random.default_rng(4 + lanes)
     network, jroad = highway_roads(lanes)
     numbers = lane_numbers(network)
