@@ -20,7 +20,7 @@ from envs_jax import vehicle as Veh
 from envs_jax.sparse import TableRows, sparse_map
 
 # Separating-axis rows packed per vehicle slot and env under vmap (more run in extra chunks).
-SAT_ROWS_PER_VEHICLE = 0.25
+SAT_ROWS_PER_VEHICLE = 0.08
 
 
 def pair_table(n_slots: int, n_obstacles: int, check_collisions):
