@@ -77,11 +77,13 @@ def decision_rows(n_slots: int) -> int:
     return n_slots if n_slots <= 12 else -(-n_slots // 4)
 
 
-def road_act(road: Road, st: TrafficState, is_idm, is_mdp, p: idm.IDMParams, obstacles=None) -> TrafficState:
+def road_act(road: Road, st: TrafficState, is_idm, is_mdp, p: idm.IDMParams, obstacles=None,
+             circles=None) -> TrafficState:
     """One frame of ``road.act()``: new target lanes, route pointers, timers and stored actions.
 
     ``is_idm``, ``is_mdp``: ``[V]`` flags of the slots' vehicle classes (neither: a
-    plain ``Vehicle``); ``obstacles``: ``[O, >= 3]`` rows ``x, y, heading, ...`` or None.
+    plain ``Vehicle``); ``obstacles``: ``[O, >= 3]`` rows ``x, y, heading, ...`` or None;
+    ``circles``: the slots' :func:`~envs_jax.lane_locate.circle_coords` if already known.
     """
     lanes = road.lanes
     n_slots = st.x.shape[0]
@@ -98,7 +100,12 @@ def road_act(road: Road, st: TrafficState, is_idm, is_mdp, p: idm.IDMParams, obs
     px, py, ph, pv, valid = objects(st, obstacles)
     n_obj = px.shape[0]
     is_vehicle = jnp.arange(n_obj) < n_slots
-    circles = LL.circle_coords(lanes, px, py)  # [N, C]: read by every lane below, computed once
+    if circles is None:
+        circles = LL.circle_coords(lanes, st.x, st.y)
+    if n_obj > n_slots:  # the obstacles' too
+        extra = LL.circle_coords(lanes, px[n_slots:], py[n_slots:])
+        circles = tuple(jnp.concatenate([c, e.astype(c.dtype)]) for c, e in zip(circles, extra))
+    # [N, C]: read by every lane below, computed once
     circles = materialize(circles) if circles[0].size else circles
     not_self = jnp.arange(n_obj) != slot[:, None]
     left, right, has_left, has_right = side_lanes(road, st.lane)

@@ -206,8 +206,21 @@ class TrafficEnv:
                           speed_index=st.speed_index.at[idx].set(si),
                           target_speed=st.target_speed.at[idx].set(tsp.astype(st.x.dtype)))
 
-    def _frame(self, st: TrafficState, params, obstacles, dt):
-        st = drivers.road_act(self.road, st, self.is_idm, self.is_mdp, params.idm, obstacles)
+    def _frames(self, st: TrafficState, params, obstacles, dt, length: int, record=None):
+        """``length`` frames in a scan, with ``record(st)`` of each (None: nothing). The slots' circle coordinates
+        pass from each frame's lane search to the next frame's drivers (nothing moves in between)."""
+        def frame(carry, _):
+            st, circles = self._frame(*carry, params, obstacles, dt)
+            return (st, circles), (record(st) if record else None)
+
+        circles = LL.circle_coords(self.road.lanes, st.x, st.y)
+        (st, _), trajectory = jax.lax.scan(frame, (st, circles), None, length=length)
+        return st, trajectory
+
+    def _frame(self, st: TrafficState, circles, params, obstacles, dt):
+        """``road.act()`` then ``road.step(dt)``; ``circles``: the slots' :func:`~envs_jax.lane_locate.circle_coords`
+        at their positions. Returns the state and the circle coordinates at the new positions."""
+        st = drivers.road_act(self.road, st, self.is_idm, self.is_mdp, params.idm, obstacles, circles)
         return self._road_step(st, obstacles, dt)
 
     def _kinematics(self, st: TrafficState, dt):
@@ -217,14 +230,15 @@ class TrafficEnv:
                                 st.impact[:, 0], st.impact[:, 1], st.has_impact, dt), {}
 
     def _road_step(self, st: TrafficState, obstacles, dt):
-        """``road.step(dt)``: kinematics of the alive slots, their lanes, then the collision loop."""
+        """``road.step(dt)``: kinematics of the alive slots, their lanes, then the collision loop. Returns the state
+        and the slots' circle coordinates at their new positions (from the lane search)."""
         (x, y, h, v, crashed, steering, acceleration), extra = self._kinematics(st, dt)
         alive = st.alive
         keep = lambda new, old: jnp.where(alive, new, old)
         x, y, h, v = keep(x, st.x), keep(y, st.y), keep(h, st.heading), keep(v, st.speed)
         crashed = keep(crashed, st.crashed)
         timer = jnp.where(alive & jnp.asarray(self.is_idm), st.timer + dt, st.timer)
-        lane, s, lat, _ = LL.locate(self.road.lanes, x, y, h)
+        lane, s, lat, circles = LL.locate(self.road.lanes, x, y, h)
         lanes = self.road.lanes
         on_road = L.on_lane_coords(lanes.col("length")[lane], lanes.col("width")[lane], s, lat)
         lane, on_road = keep(lane, st.lane), keep(on_road, st.on_road)
@@ -233,7 +247,7 @@ class TrafficEnv:
         return st.replace(x=x, y=y, heading=h, speed=v, crashed=crashed, on_road=on_road, lane=lane,
                           steering=keep(steering, st.steering), acceleration=keep(acceleration, st.acceleration),
                           impact=impact, has_impact=has_impact, timer=timer,
-                          **{k: keep(a, getattr(st, k)) for k, a in extra.items()})
+                          **{k: keep(a, getattr(st, k)) for k, a in extra.items()}), circles
 
     def _collide(self, st, x, y, h, v, alive, crashed, obstacles, dt):
         """The collision loop over the slots in list order (= slot order here)."""
@@ -245,13 +259,11 @@ class TrafficEnv:
         obstacles = self._obstacles(params, state.x.dtype)
         state = self._decide(state, action, params)
 
-        def frame(st, _):
-            st = self._frame(st, params, obstacles, dt)
-            rec = (dict(x=st.x, y=st.y, heading=st.heading, speed=st.speed, crashed=st.crashed, lane=st.lane,
-                        target_lane=st.target_lane, on_road=st.on_road) if record else None)
-            return st, rec
+        def rec(st):
+            return dict(x=st.x, y=st.y, heading=st.heading, speed=st.speed, crashed=st.crashed, lane=st.lane,
+                        target_lane=st.target_lane, on_road=st.on_road)
 
-        state, trajectory = jax.lax.scan(frame, state, None, length=self.frames)
+        state, trajectory = self._frames(state, params, obstacles, dt, self.frames, rec if record else None)
         state = state.replace(time=state.time + 1)
         obs = self.observe(state, params, key)
         reward, cost, terminated, info = self.task.outcome(prev, state, action, params)

@@ -371,8 +371,7 @@ class IntersectionTrafficEnv(TrafficEnv):
             st, initial = jax.lax.scan(attempt, st, (draws["initial"], jnp.asarray(grid, st.x.dtype)))
         dt = 1.0 / self.simulation_frequency
         obstacles = self._obstacles(params, st.x.dtype)
-        st, _ = jax.lax.scan(lambda s, _: (self._frame(s, params, obstacles, dt), None), st, None,
-                             length=task.warmup_frames)
+        st, _ = self._frames(st, params, obstacles, dt, task.warmup_frames)
         first = jax.tree_util.tree_map(lambda a: a[0], draws["challenger"])
         st, challenger = task.spawn(st, first, params, longitudinal=60.0, position_deviation=0.1,
                                     speed_deviation=0.0, probability=1.0, go_straight=True)
@@ -381,9 +380,9 @@ class IntersectionTrafficEnv(TrafficEnv):
             return self.observe(st, params, key), st, dict(initial=initial, challenger=challenger)
         return self.observe(st, params, key), st
 
-    def _frame(self, st, params, obstacles, dt):
+    def _frame(self, st, circles, params, obstacles, dt):
         """``road.act()``, then ``RegulatedRoad.step(dt)``: the rules every ``period`` road steps, the kinematics."""
-        st = drivers.road_act(self.road, st, self.is_idm, self.is_mdp, params.idm, obstacles)
+        st = drivers.road_act(self.road, st, self.is_idm, self.is_mdp, params.idm, obstacles, circles)
         steps = st.road_steps + 1
         due = steps % self.task.period == 0
 
@@ -418,11 +417,7 @@ class IntersectionTrafficEnv(TrafficEnv):
         obstacles = self._obstacles(params, state.x.dtype)
         state = self._act(state, action, params)
 
-        def frame(st, _):
-            st = self._frame(st, params, obstacles, dt)
-            return st, (self._record(st) if record else None)
-
-        state, trajectory = jax.lax.scan(frame, state, None, length=self.frames)
+        state, trajectory = self._frames(state, params, obstacles, dt, self.frames, self._record if record else None)
         state = state.replace(time=state.time + 1)
         obs = self.observe(state, params, key)
         reward, cost, terminated, info = self.task.outcome(prev, state, action, params)
