@@ -9,10 +9,12 @@ to 1e-6 m with identical discrete events. The default suite runs a short sample;
 
 from __future__ import annotations
 
+import contextlib
+
 import numpy as np
 import pytest
 
-from tests.traffic_oracle import oracle_config, run_oracle
+from tests.traffic_oracle import arcsin_one_ulp_off, oracle_config, run_oracle
 from tests.traffic_utils import run_jax
 
 POS_TOL = 1e-6
@@ -20,6 +22,14 @@ DURATION = {"highway-v0": 40, "highway-fast-v0": 30}
 
 
 def check_episode(name, k, seed, steps):
+    """One random-action episode, everything asserted; returns (max position error, lane-change decisions,
+    crashed vehicles at the end, highway-env's one-ulp sensitivity where it was needed).
+
+    A chaotic episode (a driver near zero speed, whose steering amplifies an ulp without bound) may exceed
+    ``POS_TOL``: its error must then stay within how far highway-env moves itself under a one-ulp nudge (its
+    steering arcsin one ulp up or down, or every initial x one ulp up), and everything is compared exactly up
+    to the first frame where a nudged run departs from highway-env's own by more than ``POS_TOL`` (beyond it
+    highway-env itself is not determined to that)."""
     rng = np.random.default_rng(seed)
     actions = rng.integers(0, 5, size=(steps, k))
     j = run_jax(name, seed, actions, controlled_vehicles=k)
@@ -30,25 +40,40 @@ def check_episode(name, k, seed, steps):
     np.testing.assert_allclose(o["timers"], j["init"]["timer"][alive & env.is_idm], rtol=0, atol=1e-12)
     n = j["length"] * env.frames
     assert len(o["frames"]["x"]) == n
-    err = 0.0
+    gap = lambda a, b, m: np.maximum(*(np.abs(a["frames"][q][:m] - b[q][:m]).max(1) for q in ("x", "y")))  # per frame
+    err = float(gap(o, {q: j["frames"][q][:, alive] for q in ("x", "y")}, n).max())
+    sensitivity = None
+    if err > POS_TOL:
+        sensitivity, horizon = 0.0, n
+        for nudge in (1, -1, 0):  # the arcsin up, down; every initial x one ulp up
+            init = j["init"] if nudge else dict(j["init"], x=np.nextafter(np.asarray(j["init"]["x"]), np.inf))
+            with arcsin_one_ulp_off(nudge) if nudge else contextlib.nullcontext():
+                moved = run_oracle(name, init, env.controlled, actions[: j["length"]], oracle_config(name, k))
+            m = min(n, len(moved["frames"]["x"]))
+            apart = gap(o, moved["frames"], m)
+            sensitivity = max(sensitivity, float(apart.max()))
+            horizon = min(horizon, int(np.argmax(apart > POS_TOL)) if apart.max() > POS_TOL else m)
+        assert err <= sensitivity, (f"{name} K={k} seed {seed}: position error {err:.3g} m exceeds {POS_TOL} m and "
+                                    f"highway-env's own one-ulp sensitivity {sensitivity:.3g} m")
+        n = horizon
     for key in ("x", "y", "heading", "speed"):
-        e = np.abs(o["frames"][key] - j["frames"][key][:, alive])
-        err = max(err, float(e.max()))
-        assert e.max() <= POS_TOL, (key, float(e.max()), int(np.argmax(e.max(1) > POS_TOL)))
+        e = np.abs(o["frames"][key][:n] - j["frames"][key][:n, alive])
+        assert e.max(initial=0.0) <= POS_TOL, (key, float(e.max()), int(np.argmax(e.max(1) > POS_TOL)))
     for key in ("crashed", "lane", "target_lane"):
-        np.testing.assert_array_equal(j["frames"][key][:, alive], o["frames"][key], err_msg=key)
-    np.testing.assert_allclose(j["obs"].astype(np.float32), o["obs"], rtol=1e-6, atol=1e-5)
-    np.testing.assert_allclose(j["reward"], o["reward"], rtol=0, atol=1e-9)
+        np.testing.assert_array_equal(j["frames"][key][:n, alive], o["frames"][key][:n], err_msg=key)
+    last = n // env.frames  # the steps whose frames all agree
+    np.testing.assert_allclose(j["obs"][:last].astype(np.float32), o["obs"][:last], rtol=1e-6, atol=1e-5)
+    np.testing.assert_allclose(j["reward"][:last], o["reward"][:last], rtol=0, atol=1e-9)
     np.testing.assert_allclose(o["env_reward"], o["reward"][:, 0], rtol=0, atol=0)  # agent 0 is highway-env's
-    np.testing.assert_array_equal(j["terminated"], o["terminated"])
-    np.testing.assert_array_equal(j["truncated"], o["truncated"])
+    np.testing.assert_array_equal(j["terminated"][:last], o["terminated"][:last])
+    np.testing.assert_array_equal(j["truncated"][:last], o["truncated"][:last])
     tl = o["frames"]["target_lane"]
-    return err, int((tl[1:] != tl[:-1]).sum()), int(o["frames"]["crashed"][-1].sum())
+    return err, int((tl[1:] != tl[:-1]).sum()), int(o["frames"]["crashed"][-1].sum()), sensitivity
 
 
 @pytest.mark.parametrize("name,k,seed,steps", [("highway-fast-v0", 1, 0, 12), ("highway-v0", 3, 1, 5)])
 def test_parity_sample(name, k, seed, steps, x64):
-    err, changes, crashes = check_episode(name, k, seed, steps)
+    err, changes, crashes, _ = check_episode(name, k, seed, steps)
     print(f"\n{name} K={k}: max position error {err:.1e} m, {changes} lane-change decisions, {crashes} crashed")
     assert changes > 0
 
@@ -58,11 +83,14 @@ def test_parity_sample(name, k, seed, steps, x64):
 @pytest.mark.parametrize("k", [1, 3])
 def test_parity_full(name, k, x64):
     """30 random-action episodes per configuration, full duration (ends at the first ``done``)."""
-    errs, changes, crashes = [], 0, 0
+    errs, changes, crashes, chaotic = [], 0, 0, []
     for seed in range(30):
-        e, c, x = check_episode(name, k, 100 + seed, DURATION[name])
+        e, c, x, sensitivity = check_episode(name, k, 100 + seed, DURATION[name])
         errs.append(e)
         changes += c
         crashes += x
+        if sensitivity is not None:
+            chaotic.append(f"seed {100 + seed}: {e:.1e} m vs {sensitivity:.1e} m")
     print(f"\n{name} K={k}: 30 episodes, worst position error {max(errs):.1e} m, "
-          f"{changes} lane-change decisions, {crashes} vehicles crashed at the end")
+          f"{changes} lane-change decisions, {crashes} vehicles crashed at the end; {len(chaotic)} episodes over "
+          f"{POS_TOL:g} m, each within highway-env's own one-ulp sensitivity ({', '.join(chaotic) or '-'})")

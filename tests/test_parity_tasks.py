@@ -10,12 +10,12 @@ episodes per configuration, to the end of the episode) are ``@pytest.mark.slow``
 
 from __future__ import annotations
 
-import types
+import contextlib
 
 import numpy as np
 import pytest
 
-from tests.traffic_oracle import CLASSES, lane_numbers, oracle_config, run_oracle
+from tests.traffic_oracle import CLASSES, arcsin_one_ulp_off, lane_numbers, oracle_config, run_oracle
 from tests.traffic_utils import run_jax
 
 POS_TOL = 1e-6
@@ -38,39 +38,24 @@ def routes_of(env, init) -> dict:
     return out
 
 
-def compare(name, k, seed, steps, oracle_numpy=None):
+def compare(name, k, seed, steps, nudge: int = 0):
     """One random-action episode in both simulators: the JAX and highway-env records and the episode length.
 
-    ``oracle_numpy``: a stand-in for the numpy module of highway-env's steering controller."""
+    ``nudge``: highway-env's steering arcsin one ulp up (1) or down (-1), or exact (0)."""
     rng = np.random.default_rng(seed)
     actions = rng.integers(0, 5, size=(steps, k))
     j = run_jax(name, seed, actions, controlled_vehicles=k)
     env = j["env"]
-    import highway_env.vehicle.controller as controller
-
-    controller.np = oracle_numpy or np
-    try:
+    with arcsin_one_ulp_off(nudge) if nudge else contextlib.nullcontext():
         o = run_oracle(name, j["init"], env.controlled, actions[: j["length"]], oracle_config(name, k),
                        routes=routes_of(env, j["init"]))
-    finally:
-        controller.np = np
     return env, j, o
 
 
 def oracle_sensitivity(name, k, seed, steps, o) -> float:
-    """How far highway-env moves *itself* when its steering controller's arcsin is off by one ulp.
-
-    XLA's float64 arcsin / arctan2 differ from the C library's by an ulp on some inputs; near zero
-    speed (the roundabout's lowest target speed is 0) the steering controller divides by
-    ``not_zero(speed)`` and amplifies such differences without bound (docs/parity.md)."""
-
-    class NumpyOneUlp(types.ModuleType):
-        def __getattr__(self, attr):
-            return getattr(np, attr)
-
-    shifted = NumpyOneUlp("numpy_one_ulp")
-    shifted.arcsin = lambda v: np.nextafter(np.arcsin(v), np.inf)
-    _, _, moved = compare(name, k, seed, steps, oracle_numpy=shifted)
+    """How far highway-env moves *itself* when its steering controller's arcsin is off by one ulp
+    (:func:`tests.traffic_oracle.arcsin_one_ulp_off`; the roundabout's lowest target speed is 0)."""
+    _, _, moved = compare(name, k, seed, steps, nudge=1)
     n = min(len(o["frames"]["x"]), len(moved["frames"]["x"]))
     return float(max(np.abs(o["frames"][key][:n] - moved["frames"][key][:n]).max() for key in ("x", "y")))
 

@@ -20,6 +20,9 @@ highway-env is imported here only; it must never be imported outside ``tests/``.
 
 from __future__ import annotations
 
+import contextlib
+import types
+
 import numpy as np
 from highway_env.envs.highway_env import HighwayEnv, HighwayEnvFast
 from highway_env.envs.merge_env import MergeEnv
@@ -178,3 +181,25 @@ def run_oracle(name: str, init: dict, controlled: tuple, actions, config: dict, 
         out["env_terminated"].append(terminated)
         out["parts"].append(parts)
     return finish_records(out, frames, ("obs", "reward", "terminated", "truncated", "env_reward", "env_terminated"), k)
+
+
+@contextlib.contextmanager
+def arcsin_one_ulp_off(direction: int):
+    """highway-env's steering controller with its ``arcsin`` one ulp up (``direction`` 1) or down (-1).
+
+    XLA's float64 arcsin and arctan2 differ from the C library's by an ulp on some inputs; near zero speed
+    the controller divides by ``not_zero(speed)`` and amplifies such differences without bound, so how far
+    highway-env moves *itself* under this nudge bounds what parity can mean there (docs/parity.md)."""
+    import highway_env.vehicle.controller as controller
+
+    class Shifted(types.ModuleType):
+        def __getattr__(self, attr):
+            return getattr(np, attr)
+
+    shifted = Shifted("numpy_one_ulp")
+    shifted.arcsin = lambda v: np.nextafter(np.arcsin(v), direction * np.inf)
+    controller.np = shifted
+    try:
+        yield
+    finally:
+        controller.np = np
