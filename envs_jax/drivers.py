@@ -18,6 +18,11 @@ computed for all slots at once; the abort rule is solved as the fixed point of
 "each vehicle's decision given the others' decisions" (a ``while_loop``, typically
 one or two rounds), which is unique and equal to the sequential result because a
 vehicle depends only on the vehicles before it.
+
+Only the drivers whose timer fired or who are changing lanes need their side and
+target lanes on a frame (a few of many): on roads of many slots every vehicle's own
+lane is searched for all, the rest for those drivers only, a group at a time
+(:func:`~envs_jax.sparse.grouped_rows`; docs/performance.md).
 """
 
 from __future__ import annotations
