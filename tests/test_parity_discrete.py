@@ -18,6 +18,7 @@ import pytest
 
 from tests.highway_oracle import run_oracle
 from tests.parity_utils import first_event, run_jax
+from tests.traffic_oracle import arcsin_one_ulp_off
 
 POS_TOL = {"merge": 1e-6, "roundabout": 1e-3}
 N_UNIFORM = 30
@@ -55,28 +56,13 @@ def events(r) -> tuple:
 
 @functools.lru_cache(maxsize=None)
 def oracle_sensitivity(scenario: str, index: int) -> float:
-    """How far highway-env moves *itself* when its controller's arcsin is off by one ulp.
-
-    XLA's float64 arcsin / arctan2 differ from glibc's by 1-2 ulp on a fraction of
-    inputs. Near zero speed the steering controller divides by ``not_zero(speed)``
-    and amplifies such differences without bound; this measures that conditioning.
+    """How far highway-env moves *itself* when its controller's arcsin is off by one ulp
+    (:func:`tests.traffic_oracle.arcsin_one_ulp_off`): near zero speed the steering controller divides by
+    ``not_zero(speed)`` and amplifies the 1-2 ulp differences of XLA's arcsin without bound.
     """
-    import types
-
-    import highway_env.vehicle.controller as controller
-
-    class _NumpyOneUlp(types.ModuleType):
-        def __getattr__(self, name):
-            return getattr(np, name)
-
-    shifted = _NumpyOneUlp("numpy_one_ulp")
-    shifted.arcsin = lambda v: np.nextafter(np.arcsin(v), np.inf)
     base = oracle(scenario, index)
-    controller.np = shifted
-    try:
+    with arcsin_one_ulp_off(1):
         moved = run_oracle(scenario, all_episodes(scenario)[index])
-    finally:
-        controller.np = np
     n = min(base["length"], moved["length"]) * base["frames"]
     return max(position_error(base, moved, n), 0.0)
 

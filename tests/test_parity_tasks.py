@@ -10,8 +10,6 @@ episodes per configuration, to the end of the episode) are ``@pytest.mark.slow``
 
 from __future__ import annotations
 
-import contextlib
-
 import numpy as np
 import pytest
 
@@ -46,7 +44,7 @@ def compare(name, k, seed, steps, nudge: int = 0):
     actions = rng.integers(0, 5, size=(steps, k))
     j = run_jax(name, seed, actions, controlled_vehicles=k)
     env = j["env"]
-    with arcsin_one_ulp_off(nudge) if nudge else contextlib.nullcontext():
+    with arcsin_one_ulp_off(nudge):
         o = run_oracle(name, j["init"], env.controlled, actions[: j["length"]], oracle_config(name, k),
                        routes=routes_of(env, j["init"]))
     return env, j, o

@@ -185,11 +185,15 @@ def run_oracle(name: str, init: dict, controlled: tuple, actions, config: dict, 
 
 @contextlib.contextmanager
 def arcsin_one_ulp_off(direction: int):
-    """highway-env's steering controller with its ``arcsin`` one ulp up (``direction`` 1) or down (-1).
+    """highway-env's steering controller with its ``arcsin`` one ulp up (``direction`` 1) or down (-1); 0 leaves it
+    exact.
 
     XLA's float64 arcsin and arctan2 differ from the C library's by an ulp on some inputs; near zero speed
     the controller divides by ``not_zero(speed)`` and amplifies such differences without bound, so how far
     highway-env moves *itself* under this nudge bounds what parity can mean there (docs/parity.md)."""
+    if not direction:
+        yield
+        return
     import highway_env.vehicle.controller as controller
 
     class Shifted(types.ModuleType):
