@@ -105,13 +105,14 @@ def road_act(road: Road, st: TrafficState, is_idm, is_mdp, p: idm.IDMParams, obs
     px, py, ph, pv, valid = objects(st, obstacles)
     n_obj = px.shape[0]
     is_vehicle = jnp.arange(n_obj) < n_slots
+    computed = circles is None or n_obj > n_slots  # else: carried in from the last frame, already a buffer
     if circles is None:
         circles = LL.circle_coords(lanes, st.x, st.y)
     if n_obj > n_slots:  # the obstacles' too
         extra = LL.circle_coords(lanes, px[n_slots:], py[n_slots:])
         circles = tuple(jnp.concatenate([c, e.astype(c.dtype)]) for c, e in zip(circles, extra))
-    # [N, C]: read by every lane below, computed once
-    circles = materialize(circles) if circles[0].size else circles
+    if computed and circles[0].size:  # [N, C]: read by every lane below, computed once
+        circles = materialize(circles)
     not_self = jnp.arange(n_obj) != slot[:, None]
     left, right, has_left, has_right = side_lanes(road, st.lane)
 
