@@ -16,8 +16,8 @@ creation, warm-up included), after ``road.act()`` and before the kinematics,
 
 The pair decisions only set flags, so the loop order matters only through which
 vehicle of a pair is ``v1`` (the tie rule of :func:`yielding_side`); all pairs are
-evaluated at once as a ``[V, V]`` matrix (docs/scenarios.md,
-"intersection-v0 with traffic").
+decided at once as a ``[V, V]`` matrix, the rectangle test run only on the pairs that
+pass the bounding-circle pre-check (docs/scenarios.md, "intersection-v0 with traffic").
 """
 
 from __future__ import annotations
@@ -29,6 +29,7 @@ import numpy as np
 from envs_jax import lanes as L
 from envs_jax import vehicle as Veh
 from envs_jax.road import Road
+from envs_jax.sparse import TableRows, sparse_map
 from envs_jax.traffic_state import TrafficState
 
 REGULATION_FREQUENCY = 2  # [Hz] RegulatedRoad.REGULATION_FREQUENCY
@@ -38,6 +39,7 @@ STEP = 0.25  # [s] is_conflict_possible's step
 PREDICTION_TIMES = np.arange(STEP, HORIZON, STEP)  # np.arange(step, horizon, step), as highway-env builds it
 CONFLICT_LENGTH = 1.5 * Veh.LENGTH  # the predicted rectangles: 1.5 x length, 0.9 x width
 CONFLICT_WIDTH = 0.9 * Veh.WIDTH
+CONFLICT_ROWS_PER_VEHICLE = 0.2  # rectangle tests per vehicle slot and env (intersection-v0: 1.7 pairs of 24 slots)
 
 
 def regulation_period(simulation_frequency: int) -> int:
@@ -119,24 +121,42 @@ def _inside(px, py, x, y, c, s):
     return (-hl <= u) & (u <= hl) & (-hw <= v) & (v <= hw)
 
 
-def conflicts(px, py, ph):
-    """``is_conflict_possible`` for every pair: ``[V, V]`` (symmetric) from predictions ``[V, T]``."""
+def conflicts(px, py, ph, alive=None):
+    """``is_conflict_possible`` for every pair: ``[V, V]`` (symmetric) from predictions ``[V, T]``; ``alive``
+    (``[V]``, default all): pairs with an empty slot are False.
 
-    def at_time(xyh):  # every slot's predicted rectangle at one time: heading cosine, sine and its 9 points
-        x, y, h = xyh
-        c, s = jnp.cos(h), jnp.sin(h)
-        return (c, s) + _corners(x, y, c, s)
+    The bounding-circle pre-check (centres at most a vehicle length apart at one time) runs for every pair; the
+    rectangle test only for the pairs that pass it at some time (:func:`envs_jax.sparse.sparse_map`): about two
+    pairs of an intersection's hundreds."""
+    n = px.shape[0]
+    if alive is None:
+        alive = jnp.ones(n, bool)
 
-    # one time per loop iteration: the loop's outputs are materialised, so the [T, V, V, 9] tests below read them
-    # (as one expression XLA would redo the sines and cosines for every pair)
-    c, s, cx, cy = jax.lax.map(at_time, (px.T, py.T, ph.T))  # [T, V], [T, V], [T, V, 9], [T, V, 9]
     x, y = px.T, py.T
     dx, dy = x[:, None, :] - x[:, :, None], y[:, None, :] - y[:, :, None]  # [T, i, j]: j's centre minus i's
     near = ~(jnp.sqrt(dx * dx + dy * dy) > Veh.LENGTH)
-    # [T, i, j]: a point of i's rectangle inside j's; j's points inside i's rectangle is its transpose
-    i_in_j = jnp.any(_inside(cx[:, :, None], cy[:, :, None], x[:, None, :], y[:, None, :], c[:, None, :],
-                             s[:, None, :]), axis=-1)
-    return jnp.any(near & (i_in_j | jnp.swapaxes(i_in_j, 1, 2)), axis=0)
+    iu, ju = (a.astype(np.int32) for a in np.triu_indices(n, 1))
+    candidate = jnp.any(near, axis=0)[iu, ju] & alive[iu] & alive[ju]
+
+    def rectangle(r):  # one vehicle's predictions [T, 3]: centre, heading cosine and sine, the 9 points [T, 9]
+        c, s = jnp.cos(r[:, 2]), jnp.sin(r[:, 2])
+        return (r[:, 0], r[:, 1], c, s) + _corners(r[:, 0], r[:, 1], c, s)
+
+    def pair(a, b):  # a candidate pair's predictions: a point of one rectangle inside the other at a near time
+        ax, ay, ac, as_, acx, acy = rectangle(a)
+        bx, by, bc, bs, bcx, bcy = rectangle(b)
+        ddx, ddy = bx - ax, by - ay
+        near_t = ~(jnp.sqrt(ddx * ddx + ddy * ddy) > Veh.LENGTH)
+        a_in_b = jnp.any(_inside(acx, acy, bx, by, bc, bs), axis=-1)
+        b_in_a = jnp.any(_inside(bcx, bcy, ax, ay, ac, as_), axis=-1)
+        return jnp.any(near_t & (a_in_b | b_in_a))
+
+    table = jnp.stack([px, py, ph], axis=-1)  # [V, T, 3]; the pairs' rows are gathered from it only where needed
+    fraction = min(1 / 32, CONFLICT_ROWS_PER_VEHICLE * n / max(len(iu), 1))
+    hit = sparse_map(pair, candidate, TableRows(table, jnp.asarray(iu)), TableRows(table, jnp.asarray(ju)),
+                     fraction=fraction)
+    upper = jnp.zeros((n, n), bool).at[iu, ju].set(hit)
+    return upper | upper.T
 
 
 def yielding_side(priority, x, y, heading):
@@ -172,7 +192,7 @@ def enforce_road_rules(road: Road, st: TrafficState, yielding, yield_timer, prio
         upper = jnp.asarray(np.triu(np.ones((n, n), bool), 1))
     else:
         upper = order[:, None] < order[None, :]
-    pair = upper & st.alive[:, None] & st.alive[None, :] & conflicts(px, py, ph)
+    pair = upper & st.alive[:, None] & st.alive[None, :] & conflicts(px, py, ph, st.alive)
     prio = jnp.asarray(priority)[st.lane]
     i_yields = yielding_side(prio, st.x, st.y, st.heading)
     stops = jnp.any(pair & i_yields, axis=1) | jnp.any(pair & ~i_yields, axis=0)
