@@ -192,7 +192,7 @@ def enforce_road_rules(road: Road, st: TrafficState, yielding, yield_timer, prio
         upper = jnp.asarray(np.triu(np.ones((n, n), bool), 1))
     else:
         upper = order[:, None] < order[None, :]
-    pair = upper & st.alive[:, None] & st.alive[None, :] & conflicts(px, py, ph, st.alive)
+    pair = upper & conflicts(px, py, ph, st.alive)  # live pairs only
     prio = jnp.asarray(priority)[st.lane]
     i_yields = yielding_side(prio, st.x, st.y, st.heading)
     stops = jnp.any(pair & i_yields, axis=1) | jnp.any(pair & ~i_yields, axis=0)
