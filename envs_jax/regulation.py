@@ -40,6 +40,7 @@ PREDICTION_TIMES = np.arange(STEP, HORIZON, STEP)  # np.arange(step, horizon, st
 CONFLICT_LENGTH = 1.5 * Veh.LENGTH  # the predicted rectangles: 1.5 x length, 0.9 x width
 CONFLICT_WIDTH = 0.9 * Veh.WIDTH
 CONFLICT_ROWS_PER_VEHICLE = 0.2  # rectangle tests per vehicle slot and env (intersection-v0: 1.7 pairs of 24 slots)
+DENSE_BATCH = 1  # batches up to this size test every pair (for one environment packing costs more than it saves)
 
 
 def regulation_period(simulation_frequency: int) -> int:
@@ -122,25 +123,61 @@ def _inside(px, py, x, y, c, s):
 
 
 def conflicts(px, py, ph, alive=None):
-    """``is_conflict_possible`` for every pair: ``[V, V]`` (symmetric) from predictions ``[V, T]``; ``alive``
-    (``[V]``, default all): pairs with an empty slot are False.
+    """``is_conflict_possible`` for every pair: ``[V, V]`` (symmetric, False on the diagonal) from predictions
+    ``[V, T]``; ``alive`` (``[V]``, default all): pairs with an empty slot are False.
 
-    The bounding-circle pre-check (centres at most a vehicle length apart at one time) runs for every pair; the
-    rectangle test only for the pairs that pass it at some time (:func:`envs_jax.sparse.sparse_map`): about two
-    pairs of an intersection's hundreds."""
-    n = px.shape[0]
+    For one environment (unbatched, or a batch of ``DENSE_BATCH``) every pair is tested at once
+    (:func:`_conflicts_dense`); under ``vmap`` the bounding-circle pre-check runs for every pair and the rectangle
+    test only for the pairs that pass it at some time (:func:`_conflicts_sparse`): about two pairs of an
+    intersection's hundreds. Both give the same answer."""
     if alive is None:
-        alive = jnp.ones(n, bool)
+        alive = jnp.ones(px.shape[0], bool)
+    f = jax.custom_batching.custom_vmap(_conflicts_dense)
 
+    @f.def_vmap
+    def rule(axis_size, in_batched, *args):
+        args = [a if b else jnp.broadcast_to(a, (axis_size,) + a.shape) for a, b in zip(args, in_batched)]
+        out = jax.vmap(_conflicts_dense if axis_size <= DENSE_BATCH else _conflicts_sparse)(*args)
+        return out, True
+
+    return f(px, py, ph, alive)
+
+
+def _near(px, py):
+    """The bounding-circle pre-check ``[T, i, j]``: centres at most a vehicle length apart."""
     x, y = px.T, py.T
-    dx, dy = x[:, None, :] - x[:, :, None], y[:, None, :] - y[:, :, None]  # [T, i, j]: j's centre minus i's
-    near = ~(jnp.sqrt(dx * dx + dy * dy) > Veh.LENGTH)
-    iu, ju = (a.astype(np.int32) for a in np.triu_indices(n, 1))
-    candidate = jnp.any(near, axis=0)[iu, ju] & alive[iu] & alive[ju]
+    dx, dy = x[:, None, :] - x[:, :, None], y[:, None, :] - y[:, :, None]  # j's centre minus i's
+    return ~(jnp.sqrt(dx * dx + dy * dy) > Veh.LENGTH)
 
-    def rectangle(r):  # one vehicle's predictions [T, 3]: centre, heading cosine and sine, the 9 points [T, 9]
-        c, s = jnp.cos(r[:, 2]), jnp.sin(r[:, 2])
-        return (r[:, 0], r[:, 1], c, s) + _corners(r[:, 0], r[:, 1], c, s)
+
+def _conflicts_dense(px, py, ph, alive):
+    """:func:`conflicts` testing every pair: ``[T, V, V, 9]`` points."""
+    def at_time(xyh):  # every slot's predicted rectangle at one time: heading cosine, sine and its 9 points
+        x, y, h = xyh
+        c, s = jnp.cos(h), jnp.sin(h)
+        return (c, s) + _corners(x, y, c, s)
+
+    # one time per loop iteration: the loop's outputs are materialised, so the [T, V, V, 9] tests below read them
+    # (as one expression XLA would redo the sines and cosines for every pair)
+    c, s, cx, cy = jax.lax.map(at_time, (px.T, py.T, ph.T))  # [T, V], [T, V], [T, V, 9], [T, V, 9]
+    x, y = px.T, py.T
+    # [T, i, j]: a point of i's rectangle inside j's; j's points inside i's rectangle is its transpose
+    i_in_j = jnp.any(_inside(cx[:, :, None], cy[:, :, None], x[:, None, :], y[:, None, :], c[:, None, :],
+                             s[:, None, :]), axis=-1)
+    hit = jnp.any(_near(px, py) & (i_in_j | jnp.swapaxes(i_in_j, 1, 2)), axis=0)
+    return hit & alive[:, None] & alive[None, :] & ~jnp.eye(px.shape[0], dtype=bool)
+
+
+def _conflicts_sparse(px, py, ph, alive):
+    """:func:`conflicts` with the rectangle test only for the live pairs that pass the pre-check at some time
+    (:func:`envs_jax.sparse.sparse_map`, for use under ``vmap``)."""
+    n = px.shape[0]
+    iu, ju = (a.astype(np.int32) for a in np.triu_indices(n, 1))
+    candidate = jnp.any(_near(px, py), axis=0)[iu, ju] & alive[iu] & alive[ju]
+
+    def rectangle(r):  # one vehicle's rows [T, 4]: centre, heading cosine and sine, the 9 points [T, 9]
+        x, y, c, s = r[:, 0], r[:, 1], r[:, 2], r[:, 3]
+        return (x, y, c, s) + _corners(x, y, c, s)
 
     def pair(a, b):  # a candidate pair's predictions: a point of one rectangle inside the other at a near time
         ax, ay, ac, as_, acx, acy = rectangle(a)
@@ -151,7 +188,8 @@ def conflicts(px, py, ph, alive=None):
         b_in_a = jnp.any(_inside(bcx, bcy, ax, ay, ac, as_), axis=-1)
         return jnp.any(near_t & (a_in_b | b_in_a))
 
-    table = jnp.stack([px, py, ph], axis=-1)  # [V, T, 3]; the pairs' rows are gathered from it only where needed
+    # [V, T, 4]: each slot's trigonometry once (not per pair); the pairs' rows are gathered only where needed
+    table = jnp.stack([px, py, jnp.cos(ph), jnp.sin(ph)], axis=-1)
     fraction = min(1 / 32, CONFLICT_ROWS_PER_VEHICLE * n / max(len(iu), 1))
     hit = sparse_map(pair, candidate, TableRows(table, jnp.asarray(iu)), TableRows(table, jnp.asarray(ju)),
                      fraction=fraction)

@@ -1,8 +1,9 @@
 """``regulation.conflicts`` against highway-env's own ``RegulatedRoad.is_conflict_possible`` test, pair by pair.
 
 The predictions are random and clustered (a few metres apart, random headings), so most pairs pass the
-bounding-circle pre-check at some time and the rectangle test decides; both the plain call and the batched
-one (``vmap``, where the rectangle tests run only on the packed candidate pairs) must equal the brute force.
+bounding-circle pre-check at some time and the rectangle test decides; both the plain call (every pair tested)
+and the batched one (``vmap``, where the rectangle tests run only on the packed candidate pairs) must equal the
+brute force.
 """
 
 from __future__ import annotations
