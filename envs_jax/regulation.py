@@ -16,8 +16,8 @@ creation, warm-up included), after ``road.act()`` and before the kinematics,
 
 The pair decisions only set flags, so the loop order matters only through which
 vehicle of a pair is ``v1`` (the tie rule of :func:`yielding_side`); all pairs are
-decided at once as a ``[V, V]`` matrix, the rectangle test run only on the pairs that
-pass the bounding-circle pre-check (docs/scenarios.md, "intersection-v0 with traffic").
+decided at once as a ``[V, V]`` matrix, under ``vmap`` the rectangle test run only on the
+pairs that pass the bounding-circle pre-check (docs/scenarios.md, "intersection-v0 with traffic").
 """
 
 from __future__ import annotations
