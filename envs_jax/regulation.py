@@ -143,11 +143,15 @@ def conflicts(px, py, ph, alive=None):
     return f(px, py, ph, alive)
 
 
-def _near(px, py):
-    """The bounding-circle pre-check ``[T, i, j]``: centres at most a vehicle length apart."""
-    x, y = px.T, py.T
-    dx, dy = x[:, None, :] - x[:, :, None], y[:, None, :] - y[:, :, None]  # j's centre minus i's
+def _close(dx, dy):
+    """The bounding-circle pre-check on centre offsets: not more than a vehicle length apart."""
     return ~(jnp.sqrt(dx * dx + dy * dy) > Veh.LENGTH)
+
+
+def _near(px, py):
+    """The pre-check for every pair, ``[T, i, j]``."""
+    x, y = px.T, py.T
+    return _close(x[:, None, :] - x[:, :, None], y[:, None, :] - y[:, :, None])  # j's centre minus i's
 
 
 def _conflicts_dense(px, py, ph, alive):
@@ -182,8 +186,7 @@ def _conflicts_sparse(px, py, ph, alive):
     def pair(a, b):  # a candidate pair's predictions: a point of one rectangle inside the other at a near time
         ax, ay, ac, as_, acx, acy = rectangle(a)
         bx, by, bc, bs, bcx, bcy = rectangle(b)
-        ddx, ddy = bx - ax, by - ay
-        near_t = ~(jnp.sqrt(ddx * ddx + ddy * ddy) > Veh.LENGTH)
+        near_t = _close(bx - ax, by - ay)
         a_in_b = jnp.any(_inside(acx, acy, bx, by, bc, bs), axis=-1)
         b_in_a = jnp.any(_inside(bcx, bcy, ax, ay, ac, as_), axis=-1)
         return jnp.any(near_t & (a_in_b | b_in_a))

@@ -51,6 +51,7 @@ def check_episode(name, k, seed, steps):
     err = float(off.max())
     spread = None
     if err > POS_TOL:
+        departs = int(np.argmax(off > POS_TOL))  # the JAX run's first frame over the tolerance
         spread, horizon, runs = 0.0, n, [o]
         for nudge, field, direction in NUDGES:
             init = dict(j["init"])
@@ -66,7 +67,7 @@ def check_episode(name, k, seed, steps):
                                                for r in runs])
             runs.append(moved)
             # done once the spread covers the error and a nudged run departs no later than the JAX run does
-            if err <= SPREAD_SLACK * spread + POS_TOL and horizon <= int(np.argmax(off > POS_TOL)):
+            if err <= SPREAD_SLACK * spread + POS_TOL and horizon <= departs:
                 break
         # highway-env's own spread under one-ulp nudges bounds the error (the error may equal it: a nudged run can
         # take the very branch the JAX run takes)
