@@ -20,8 +20,8 @@ one or two rounds), which is unique and equal to the sequential result because a
 vehicle depends only on the vehicles before it.
 
 Only the drivers whose timer fired or who are changing lanes need their side and
-target lanes on a frame (a few of many): on roads of many slots every vehicle's own
-lane is searched for all, the rest for those drivers only, a group at a time
+target lanes on a frame (a few of many): every vehicle's own lane is searched for all,
+the rest for those drivers only, a group at a time
 (:func:`~envs_jax.sparse.grouped_rows`; docs/performance.md).
 """
 
@@ -77,9 +77,10 @@ def objects(st: TrafficState, obstacles):
 
 
 def decision_rows(n_slots: int) -> int:
-    """Drivers whose lane-change work runs at once on a frame (:func:`~envs_jax.sparse.grouped_rows`): every
-    slot on small roads; a quarter of them with many, since a timer fires about once a second per driver."""
-    return n_slots if n_slots <= 12 else -(-n_slots // 4)
+    """Drivers whose lane-change work runs at once on a frame (:func:`~envs_jax.sparse.grouped_rows`): a timer
+    fires about once a second per driver, so on a small road rarely more than one decides on a frame (one at a
+    time), and on a road of many slots a quarter of them at once covers a frame's deciding drivers."""
+    return 1 if n_slots <= 12 else -(-n_slots // 4)
 
 
 def road_act(road: Road, st: TrafficState, is_idm, is_mdp, p: idm.IDMParams, obstacles=None,
@@ -116,14 +117,10 @@ def road_act(road: Road, st: TrafficState, is_idm, is_mdp, p: idm.IDMParams, obs
     not_self = jnp.arange(n_obj) != slot[:, None]
     left, right, has_left, has_right = side_lanes(road, st.lane)
 
-    def rows_of(r):
-        """The drivers ``r`` (``[G]`` slots; None: every slot, without gathers) and a function taking their rows."""
-        return (slot, lambda a: a) if r is None else (r, lambda a: a[r])
-
-    def search(r):
-        """Every object on the own, left, right and target lanes of the drivers ``r`` (see :func:`rows_of`): the
+    def search(me):
+        """Every object on the own, left, right and target lanes of the drivers ``me`` (``[G]`` slots): the
         query lanes ``[G, 4]``, the coordinates ``[G, 4, N]`` and the front and rear objects ``[G, 4]``."""
-        me, take = rows_of(r)
+        take = lambda a: a[me]
         query = jnp.stack([take(st.lane), take(left), take(right), take(t1)], axis=-1)
         # materialised once: otherwise XLA recomputes the coordinates inside each consumer
         s, lat = materialize(N.coordinates_on(lanes, query, px, py, circles))
@@ -132,16 +129,11 @@ def road_act(road: Road, st: TrafficState, is_idm, is_mdp, p: idm.IDMParams, obs
         front, rear = materialize(N.front_rear(s[g, :, me], s, on))  # computed once, not per consumer
         return query, s, lat, front, rear
 
-    # a few drivers decide on a frame (their timer fired, or they are changing lanes): on a road of many slots,
-    # every vehicle's own lane here and the side and target lanes only for them (``deciding`` below)
-    grouped = decision_rows(n_slots) < n_slots
-    if grouped:
-        s_own, lat_own = materialize(N.coordinates_on(lanes, st.lane, px, py, circles))  # [V, N]
-        eligible = N.on_lane(lanes, st.lane, s_own, lat_own) & valid & not_self
-        front_own = materialize(N.front_rear(s_own[slot, slot], s_own, eligible)[0])
-    else:
-        found = search(None)
-        s_own, front_own = found[1][:, 0], found[3][:, 0]
+    # a few drivers decide on a frame (their timer fired, or they are changing lanes): every vehicle's own lane
+    # here, and the side and target lanes only for them (``deciding`` below)
+    s_own, lat_own = materialize(N.coordinates_on(lanes, st.lane, px, py, circles))  # [V, N]
+    eligible = N.on_lane(lanes, st.lane, s_own, lat_own) & valid & not_self
+    front_own = materialize(N.front_rear(s_own[slot, slot], s_own, eligible)[0])
 
     pad = lambda a, v: jnp.concatenate([a, jnp.full((n_obj - n_slots,), v, a.dtype)])
     # per object, read by every pair below (XLA would otherwise recompute the trigonometry per pair)
@@ -167,12 +159,11 @@ def road_act(road: Road, st: TrafficState, is_idm, is_mdp, p: idm.IDMParams, obs
     abortable = acting_idm & changing & (lane_road[st.lane] == lane_road[t1])
     cos_v, sin_v = cos_h[:n_slots], sin_h[:n_slots]
 
-    def deciding(r, found):
-        """The lane-change work of the drivers ``r`` (see :func:`rows_of`) from their :func:`search`: MOBIL's
-        choice where the timer fired, the rivals of the abort rule and the IDM acceleration behind the front
-        vehicle of the chosen lane."""
-        me, take = rows_of(r)
-        query, s, lat, front, rear = found
+    def deciding(me):
+        """The lane-change work of the drivers ``me`` (``[G]`` slots): MOBIL's choice where the timer fired, the
+        rivals of the abort rule and the IDM acceleration behind the front vehicle of the chosen lane."""
+        take = lambda a: a[me]
+        query, s, lat, front, rear = search(me)
         g = jnp.arange(me.shape[0])
         s_self, lat_self = s[g, :, me], lat[g, :, me]  # [G, 4]: the vehicle's own coordinates on its query lanes
 
@@ -213,11 +204,7 @@ def road_act(road: Road, st: TrafficState, is_idm, is_mdp, p: idm.IDMParams, obs
         a_target = pair_acceleration(objs, me, front_target, take(st.delta), p, free=take(free_me))
         return target, rivals, a_target
 
-    if grouped:
-        target, rivals, a_target = grouped_rows(lambda r: deciding(r, search(r)), gate | (acting_idm & changing),
-                                                decision_rows(n_slots))
-    else:
-        target, rivals, a_target = deciding(None, found)
+    target, rivals, a_target = grouped_rows(deciding, gate | (acting_idm & changing), decision_rows(n_slots))
     target = jnp.where(gate, target, t1)
     before = slot[None, :] < slot[:, None]
     base = jnp.where(acting_idm, target, jnp.where(follows, t1, t0))

@@ -188,10 +188,10 @@ def grouped_rows(fn, mask, size: int):
     ``fn(rows)`` takes ``size`` row indices (``[size]`` ints) and returns a pytree of ``[size, ...]`` arrays, one
     entry per index; it may read anything of the environment (a closure), which :func:`sparse_map`'s rows may not.
     For per-row work that only a few of an environment's rows need on a frame (MOBIL's lane-change decisions of the
-    drivers whose timer fired): the masked rows are numbered in order, the first ``size`` run at once, and a
-    ``while_loop`` runs further groups only when more rows are masked (under ``vmap``: only when some environment of
-    the batch has more). With ``size >= n`` it is ``fn`` on every row. Rows must be independent: a row's result
-    may not depend on which others share its group.
+    drivers whose timer fired): the masked rows are numbered in order and a ``while_loop`` runs them ``size`` at
+    a time, as many groups as there are masked rows (none on a frame where no row is masked; under ``vmap``: as
+    many as the environment of the batch with the most needs). With ``size >= n`` it is ``fn`` on every row. Rows
+    must be independent: a row's result may not depend on which others share its group.
     """
     n = mask.shape[0]
     every = jnp.arange(n, dtype=jnp.int32)
@@ -213,9 +213,8 @@ def grouped_rows(fn, mask, size: int):
 
     shapes = jax.eval_shape(fn, slots)
     out = jax.tree_util.tree_map(lambda s: jnp.zeros((n,) + s.shape[1:], s.dtype), shapes)
-    out = run(0, out)
     _, out = jax.lax.while_loop(lambda c: c[0] * size < count, lambda c: (c[0] + 1, run(c[0], c[1])),
-                                (jnp.ones((), jnp.int32), out))
+                                (jnp.zeros((), jnp.int32), out))
     return out
 
 
