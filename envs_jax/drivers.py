@@ -42,11 +42,14 @@ from envs_jax.sparse import grouped_rows, sparse_map
 from envs_jax.traffic_state import TrafficState
 
 
-def follow_road(road: Road, st: TrafficState, acting):
+def follow_road(road: Road, st: TrafficState, acting, circles=None):
     """``ControlledVehicle.follow_road`` for the ``acting`` slots: past ``length - 2.5`` m of the
-    target lane, switch to ``road.next_lane``. Returns ``(target_lane, route_ptr)``."""
+    target lane, switch to ``road.next_lane``. Returns ``(target_lane, route_ptr)``. ``circles``: the slots'
+    :func:`~envs_jax.lane_locate.circle_coords` if already known."""
     tl, rp = st.target_lane, st.route_ptr
-    s, _ = L.local_coordinates(road.lanes, tl, st.x, st.y)
+    if circles is None:
+        circles = LL.circle_coords(road.lanes, st.x, st.y)
+    s, _ = LL.lane_coords(road.lanes, st.x, st.y, circles, tl, sine=False)  # the longitudinal coordinate only
     end = acting & (s > road.lanes.col("length")[tl] - L.VEHICLE_LENGTH / 2)
     nl, nrp = sparse_map(road.next_lane, end, tl, s, st.route_roads, st.route_ids, st.route_len, rp,
                          fraction=1 / 32)
@@ -100,20 +103,22 @@ def road_act(road: Road, st: TrafficState, is_idm, is_mdp, p: idm.IDMParams, obs
     follows = st.alive & (is_mdp | acting_idm)
     slot = jnp.arange(n_slots)
 
+    computed = circles is None  # else: carried in from the last frame, already a buffer
+    if circles is None:
+        circles = LL.circle_coords(lanes, st.x, st.y)
+    if computed and circles[0].size:  # [V, C]: read by follow_road and every lane below, computed once
+        circles = materialize(circles)
     t0 = st.target_lane
-    t1, route_ptr = follow_road(road, st, follows)
+    t1, route_ptr = follow_road(road, st, follows, circles)
 
     px, py, ph, pv, valid = objects(st, obstacles)
     n_obj = px.shape[0]
     is_vehicle = jnp.arange(n_obj) < n_slots
-    computed = circles is None or n_obj > n_slots  # else: carried in from the last frame, already a buffer
-    if circles is None:
-        circles = LL.circle_coords(lanes, st.x, st.y)
     if n_obj > n_slots:  # the obstacles' too
         extra = LL.circle_coords(lanes, px[n_slots:], py[n_slots:])
         circles = tuple(jnp.concatenate([c, e.astype(c.dtype)]) for c, e in zip(circles, extra))
-    if computed and circles[0].size:  # [N, C]: read by every lane below, computed once
-        circles = materialize(circles)
+        if circles[0].size:  # [N, C]: read by every lane below, computed once
+            circles = materialize(circles)
     not_self = jnp.arange(n_obj) != slot[:, None]
     left, right, has_left, has_right = side_lanes(road, st.lane)
 
