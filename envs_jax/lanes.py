@@ -207,17 +207,25 @@ def position(lanes: LaneTable, idx, s, lat):
     return jnp.where(circ, x_cir, x_lin), jnp.where(circ, y_cir, y_lin)
 
 
-def _heading_from_row(r, s):
-    sine_term = jnp.arctan(r["amplitude"] * r["pulsation"] * jnp.cos(r["pulsation"] * s + r["phase"]))
-    h_lin = jnp.where(r["kind"] == SINE, r["heading"] + sine_term, r["heading"])
-    radius = jnp.where(r["radius"] == 0, 1.0, r["radius"])
-    h_cir = r["cdir"] * s / radius + r["start_phase"] + jnp.pi / 2 * r["cdir"]
-    return jnp.where(r["kind"] == CIRCULAR, h_cir, h_lin)
-
-
 def heading_at(lanes: LaneTable, idx, s):
-    """Lane heading at longitudinal coordinate ``s`` (``lane.heading_at``)."""
-    return _heading_from_row(lanes.row(idx), s)
+    """Lane heading at longitudinal coordinate ``s`` (``lane.heading_at``). Only the lane families the road has
+    are evaluated (a straight road costs no trigonometry), from the columns they read."""
+    sine = lanes.sine_rows.size > 0
+    circular = lanes.circular_rows.size > 0
+    names = ["heading"] + (["amplitude", "pulsation", "phase"] if sine else [])
+    names += ["start_phase", "cdir", "radius"] if circular else []
+    table = jnp.asarray(lanes.table[:, [COLUMN[n] for n in names]], dtype=float_dtype())[idx]
+    r = {n: table[..., i] for i, n in enumerate(names)}
+    kind = jnp.asarray(lanes.kind)[idx]
+    h = r["heading"]
+    if sine:
+        sine_term = jnp.arctan(r["amplitude"] * r["pulsation"] * jnp.cos(r["pulsation"] * s + r["phase"]))
+        h = jnp.where(kind == SINE, r["heading"] + sine_term, h)
+    if circular:
+        radius = jnp.where(r["radius"] == 0, 1.0, r["radius"])
+        h_cir = r["cdir"] * s / radius + r["start_phase"] + jnp.pi / 2 * r["cdir"]
+        h = jnp.where(kind == CIRCULAR, h_cir, h)
+    return h
 
 
 def on_lane_coords(lane_length, lane_width, s, lat):
