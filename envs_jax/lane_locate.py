@@ -20,7 +20,6 @@ from envs_jax import sparse
 from envs_jax.all_lanes import distance_with_heading_all, first_argmin
 from envs_jax.lanes import (
     CIRCULAR,
-    COLUMN,
     FIELDS,
     SINE,
     LaneTable,
@@ -88,8 +87,7 @@ def lane_coords(lanes: LaneTable, px, py, circles, idx, sine: bool = True):
     names = ["start_x", "start_y", "dir_x", "dir_y", "lat_x", "lat_y"]
     names += ["amplitude", "pulsation", "phase"] if sine else []
     names += ["start_phase", "cdir", "radius"] if lanes.circular_rows.size else []
-    table = jnp.asarray(lanes.table[:, [COLUMN[n] for n in names]], dtype=float_dtype())[idx]
-    r = {n: table[..., i] for i, n in enumerate(names)}
+    r = lanes.columns(idx, names)
     kind = jnp.asarray(lanes.kind)[idx]
     s, lat = linear_local(r, px, py)
     if sine:
