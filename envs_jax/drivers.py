@@ -22,7 +22,8 @@ vehicle depends only on the vehicles before it.
 Only the drivers whose timer fired or who are changing lanes need their side and
 target lanes on a frame (a few of many): every vehicle's own lane is searched for all,
 the rest for those drivers only, a group at a time
-(:func:`~envs_jax.sparse.grouped_rows`; docs/performance.md).
+(:func:`~envs_jax.sparse.grouped_rows`), or on small roads packed across the batch
+(:func:`~envs_jax.sparse.batch_rows`; docs/performance.md).
 """
 
 from __future__ import annotations
@@ -38,7 +39,7 @@ from envs_jax import vehicle as Veh
 from envs_jax.materialize import materialize
 from envs_jax.mobil import ObjectTable, accept, free_acceleration, pair_acceleration
 from envs_jax.road import Road
-from envs_jax.sparse import grouped_rows, sparse_map
+from envs_jax.sparse import batch_rows, grouped_rows, sparse_map
 from envs_jax.traffic_state import TrafficState
 
 
@@ -81,8 +82,10 @@ def objects(st: TrafficState, obstacles):
 
 def decision_rows(n_slots: int) -> int:
     """Drivers whose lane-change work runs at once on a frame (:func:`~envs_jax.sparse.grouped_rows`): a timer
-    fires about once a second per driver, so on a small road rarely more than one decides on a frame (one at a
-    time), and on a road of many slots a quarter of them at once covers a frame's deciding drivers."""
+    fires about once a second per driver, so on a road of many slots a quarter of them at once covers a frame's
+    deciding drivers. On a small road (1) rarely more than one decides on a frame, and under ``vmap`` the deciding
+    drivers of the whole batch are packed together instead (:func:`~envs_jax.sparse.batch_rows`), so the
+    environment with the most deciding drivers does not set the work of all."""
     return 1 if n_slots <= 12 else -(-n_slots // 4)
 
 
@@ -119,25 +122,12 @@ def road_act(road: Road, st: TrafficState, is_idm, is_mdp, p: idm.IDMParams, obs
         circles = tuple(jnp.concatenate([c, e.astype(c.dtype)]) for c, e in zip(circles, extra))
         if circles[0].size:  # [N, C]: read by every lane below, computed once
             circles = materialize(circles)
-    not_self = jnp.arange(n_obj) != slot[:, None]
     left, right, has_left, has_right = side_lanes(road, st.lane)
-
-    def search(me):
-        """Every object on the own, left, right and target lanes of the drivers ``me`` (``[G]`` slots): the
-        query lanes ``[G, 4]``, the coordinates ``[G, 4, N]`` and the front and rear objects ``[G, 4]``."""
-        take = lambda a: a[me]
-        query = jnp.stack([take(st.lane), take(left), take(right), take(t1)], axis=-1)
-        # materialised once: otherwise XLA recomputes the coordinates inside each consumer
-        s, lat = materialize(N.coordinates_on(lanes, query, px, py, circles))
-        on = N.on_lane(lanes, query, s, lat) & valid & take(not_self)[:, None, :]
-        g = jnp.arange(me.shape[0])
-        front, rear = materialize(N.front_rear(s[g, :, me], s, on))  # computed once, not per consumer
-        return query, s, lat, front, rear
 
     # a few drivers decide on a frame (their timer fired, or they are changing lanes): every vehicle's own lane
     # here, and the side and target lanes only for them (``deciding`` below)
     s_own, lat_own = materialize(N.coordinates_on(lanes, st.lane, px, py, circles))  # [V, N]
-    eligible = N.on_lane(lanes, st.lane, s_own, lat_own) & valid & not_self
+    eligible = N.on_lane(lanes, st.lane, s_own, lat_own) & valid & (jnp.arange(n_obj) != slot[:, None])
     front_own = materialize(N.front_rear(s_own[slot, slot], s_own, eligible)[0])
 
     pad = lambda a, v: jnp.concatenate([a, jnp.full((n_obj - n_slots,), v, a.dtype)])
@@ -162,13 +152,26 @@ def road_act(road: Road, st: TrafficState, is_idm, is_mdp, p: idm.IDMParams, obs
     moving = jnp.abs(st.speed) >= 1
     lane_road = jnp.asarray(road.lane_road)
     abortable = acting_idm & changing & (lane_road[st.lane] == lane_road[t1])
-    cos_v, sin_v = cos_h[:n_slots], sin_h[:n_slots]
-
-    def deciding(me):
-        """The lane-change work of the drivers ``me`` (``[G]`` slots): MOBIL's choice where the timer fired, the
-        rivals of the abort rule and the IDM acceleration behind the front vehicle of the chosen lane."""
+    def search(me, e):
+        """Every object on the own, left, right and target lanes of the drivers ``me`` (``[G]`` slots): the
+        query lanes ``[G, 4]``, the coordinates ``[G, 4, N]`` and the front and rear objects ``[G, 4]``."""
         take = lambda a: a[me]
-        query, s, lat, front, rear = search(me)
+        query = jnp.stack([take(e["lane"]), take(e["left"]), take(e["right"]), take(e["t1"])], axis=-1)
+        # materialised once: otherwise XLA recomputes the coordinates inside each consumer
+        s, lat = materialize(N.coordinates_on(lanes, query, e["px"], e["py"], e["circles"]))
+        not_me = jnp.arange(n_obj) != me[:, None]
+        on = N.on_lane(lanes, query, s, lat) & e["valid"] & not_me[:, None, :]
+        g = jnp.arange(me.shape[0])
+        front, rear = materialize(N.front_rear(s[g, :, me], s, on))  # computed once, not per consumer
+        return query, s, lat, front, rear
+
+    def deciding(me, e):
+        """The lane-change work of the drivers ``me`` (``[G]`` slots) of the environment ``e`` (its arrays, named
+        below): MOBIL's choice where the timer fired, the rivals of the abort rule and the IDM acceleration behind
+        the front vehicle of the chosen lane."""
+        take = lambda a: a[me]
+        objs, p = e["objs"], e["p"]
+        query, s, lat, front, rear = search(me, e)
         g = jnp.arange(me.shape[0])
         s_self, lat_self = s[g, :, me], lat[g, :, me]  # [G, 4]: the vehicle's own coordinates on its query lanes
 
@@ -183,33 +186,44 @@ def road_act(road: Road, st: TrafficState, is_idm, is_mdp, p: idm.IDMParams, obs
         op, of = front[:, 0], rear[:, 0]
         ego = jnp.stack([lr, lr, me, rr, rr, me, of, of], axis=-1)
         fro = jnp.stack([lf, me, lf, rf, me, rf, me, op], axis=-1)
-        delta = take(st.delta)[:, None]
+        delta = take(e["delta"])[:, None]
         # the free-road term (a power) depends on the ego and the deciding vehicle only: four egos per row
         free4 = materialize(free_acceleration(objs, jnp.stack([lr, rr, of], axis=-1), delta, p))
-        f_lr, f_rr, f_of, f_me = free4[:, 0], free4[:, 1], free4[:, 2], take(free_me)
+        f_lr, f_rr, f_of, f_me = free4[:, 0], free4[:, 1], free4[:, 2], take(e["free_me"])
         free = jnp.stack([f_lr, f_lr, f_me, f_rr, f_rr, f_me, f_of, f_of], axis=-1)
         acc = pair_acceleration(objs, ego, fro, delta, p, free=free)
-        common = (take(a_lane), acc[:, 6], acc[:, 7])  # me behind old preceding, old follower behind me / old preceding
-        target = take(t1)
-        for q, exists, step, k in ((1, has_left, -1, 0), (2, has_right, 1, 3)):
+        # me behind the old preceding, the old follower behind me / behind the old preceding
+        common = (take(e["a_lane"]), acc[:, 6], acc[:, 7])
+        target = take(e["t1"])
+        for q, exists, step, k in ((1, "has_left", -1, 0), (2, "has_right", 1, 3)):
             target_id = jnp.asarray(road.lane_id)[target]
-            ok = accept(acc[:, k], acc[:, k + 1], acc[:, k + 2], *common, take(lane_id) + step, target_id,
-                        take(fixes_lane), take(route_id), p)
-            target = jnp.where(take(gate) & take(exists) & reachable(q) & take(moving) & ok, query[:, q], target)
+            ok = accept(acc[:, k], acc[:, k + 1], acc[:, k + 2], *common, take(e["lane_id"]) + step, target_id,
+                        take(e["fixes_lane"]), take(e["route_id"]), p)
+            target = jnp.where(take(e["gate"]) & take(e[exists]) & reachable(q) & take(e["moving"]) & ok,
+                               query[:, q], target)
 
         # abort rule: another (controlled-class) vehicle is changing into the same lane, within the desired gap
-        d = take(s_own)[:, :n_slots] - s_self[:, :1]  # [G, V]: lane_distance_to(v), on the vehicle's own lane
-        dv = idm.velocity_gap(take(st.speed)[:, None], take(cos_v)[:, None], take(sin_v)[:, None],
-                              st.speed[None, :], cos_v[None, :], sin_v[None, :])
-        d_star = idm.desired_gap(take(st.speed)[:, None], dv, p)
-        rivals = (st.alive[None, :] & controlled_class[None, :] & (slot[None, :] != me[:, None])
-                  & (st.lane[None, :] != take(t1)[:, None]) & (0 < d) & (d < d_star))
+        speed, cos_v, sin_v = e["speed"], objs.cos_h[:n_slots], objs.sin_h[:n_slots]
+        d = take(objs.s_own)[:, :n_slots] - s_self[:, :1]  # [G, V]: lane_distance_to(v), on the vehicle's own lane
+        dv = idm.velocity_gap(take(speed)[:, None], take(cos_v)[:, None], take(sin_v)[:, None],
+                              speed[None, :], cos_v[None, :], sin_v[None, :])
+        d_star = idm.desired_gap(take(speed)[:, None], dv, p)
+        rivals = (e["alive"][None, :] & e["controlled"][None, :] & (jnp.arange(n_slots) != me[:, None])
+                  & (e["lane"][None, :] != take(e["t1"])[:, None]) & (0 < d) & (d < d_star))
         q_target = jnp.argmax(query == target[:, None], axis=-1)
         front_target = jnp.take_along_axis(front, q_target[:, None], axis=-1)[:, 0]
-        a_target = pair_acceleration(objs, me, front_target, take(st.delta), p, free=take(free_me))
+        a_target = pair_acceleration(objs, me, front_target, take(e["delta"]), p, free=take(e["free_me"]))
         return target, rivals, a_target
 
-    target, rivals, a_target = grouped_rows(deciding, gate | (acting_idm & changing), decision_rows(n_slots))
+    env = dict(lane=st.lane, left=left, right=right, has_left=has_left, has_right=has_right, t1=t1, px=px, py=py,
+               circles=circles, valid=valid, objs=objs, p=p, delta=st.delta, free_me=free_me, a_lane=a_lane,
+               lane_id=lane_id, fixes_lane=fixes_lane, route_id=route_id, gate=gate, moving=moving,
+               speed=st.speed, alive=st.alive, controlled=controlled_class)
+    needs = gate | (acting_idm & changing)
+    if decision_rows(n_slots) == 1:  # a small road: the batch's few deciding drivers packed together
+        target, rivals, a_target = batch_rows(lambda me, e: [o[0] for o in deciding(me[None], e)], needs, env)
+    else:
+        target, rivals, a_target = grouped_rows(lambda me: deciding(me, env), needs, decision_rows(n_slots))
     target = jnp.where(gate, target, t1)
     before = slot[None, :] < slot[:, None]
     base = jnp.where(acting_idm, target, jnp.where(follows, t1, t0))

@@ -218,6 +218,39 @@ def grouped_rows(fn, mask, size: int):
     return out
 
 
+def batch_rows(fn, mask, env, fraction: float = 1 / 12, min_rows: int = 64):
+    """``fn(row, env)`` on each row of one environment where ``mask`` (``[n]``), zeros elsewhere; ``row`` is a scalar
+    index and ``env`` a pytree of the environment's arrays, which ``fn`` may read whole (it may close over nothing
+    traced).
+
+    :func:`grouped_rows` with the rows of the whole batch packed together: under ``vmap`` (custom rule) an
+    environment whose rows are all unmasked costs nothing and one with many masked rows no more than its rows, where
+    :func:`grouped_rows` runs every environment of the batch as many times as the busiest one needs. The masked rows
+    are packed into chunks (``fraction`` of the batch's rows, at least ``min_rows``; as :func:`sparse_map`), each row
+    gathers its own environment's ``env``, so this suits environments of small arrays (few vehicle slots).
+    Unbatched it is :func:`grouped_rows` one row at a time."""
+    leaves, treedef = jax.tree_util.tree_flatten(env)
+    one_row = lambda r, *ls: fn(r, jax.tree_util.tree_unflatten(treedef, ls))
+
+    def unbatched(mask, *leaves):
+        return grouped_rows(lambda rows: jax.vmap(one_row, (0,) + (None,) * len(leaves))(rows, *leaves), mask, 1)
+
+    f = jax.custom_batching.custom_vmap(unbatched)
+
+    @f.def_vmap
+    def rule(axis_size, in_batched, mask, *leaves):
+        n = mask.shape[-1]
+        mask = (mask if in_batched[0] else jnp.broadcast_to(mask, (axis_size, n))).reshape(axis_size * n)
+        batched = in_batched[1:]
+        vfn = jax.vmap(one_row, (0,) + tuple(0 if b else None for b in batched))
+        fetch = lambda rows: (rows % n,) + tuple(a[rows // n] if b else a for a, b in zip(leaves, batched))
+        out = _packed(vfn, mask, fetch, fraction, min_rows)
+        out = jax.tree_util.tree_map(lambda o: o.reshape((axis_size, n) + o.shape[1:]), out)
+        return out, jax.tree_util.tree_map(lambda _: True, out)
+
+    return f(mask, *leaves)
+
+
 def _column(mask, like):
     """``mask`` (``[n]``) shaped to broadcast against ``like`` (``[n, ...]``)."""
     return mask.reshape(mask.shape + (1,) * (like.ndim - 1))

@@ -10,7 +10,7 @@ import pytest
 
 import envs_jax
 from envs_jax.env import sparse_map
-from envs_jax.sparse import _select_bit, _words, grouped_rows
+from envs_jax.sparse import _select_bit, _words, batch_rows, grouped_rows
 
 
 def _fn(x, y):
@@ -169,3 +169,28 @@ def test_grouped_rows_equals_dense_where(size):
     np.testing.assert_array_equal(np.asarray(got["k"]), np.asarray(want_k))
     alone = jax.jit(one_env)(mask[30], x[30])
     np.testing.assert_allclose(np.asarray(alone["y"]), np.asarray(want_y[30]), rtol=1e-6, atol=1e-6)
+
+
+@pytest.mark.parametrize("batch", [3, 50])
+def test_batch_rows_equals_dense_where(batch):
+    """The masked rows of a whole batch packed together (one chunk for 3 environments; several for 50, capacity
+    64 of 600 rows) give ``fn`` on every masked row, reading its own environment whole, and zeros elsewhere;
+    unbatched one row at a time; an environment argument shared by the batch (not batched) is read as such."""
+    x = jax.random.normal(jax.random.PRNGKey(batch), (batch, 12, 3))
+    spread = jnp.arange(batch * 12).reshape(batch, 12) * 37 % 100  # scattered, deterministic
+    mask = spread < jnp.linspace(0, 100, batch)[:, None]  # none in the first environment ... every row in the last
+    shared = jnp.arange(12.0)
+
+    def one_env(m, a):
+        def fn(row, env):
+            return {"y": jnp.sin(env["a"][row]) * jnp.sum(env["a"]) + env["w"][row], "k": row * 2}
+        return batch_rows(fn, m, {"a": a, "w": shared})
+
+    got = jax.jit(jax.vmap(one_env))(mask, x)
+    want_y = jnp.where(mask[..., None], jnp.sin(x) * jnp.sum(x, axis=(1, 2))[:, None, None] + shared[:, None], 0)
+    want_k = jnp.where(mask, jnp.arange(12) * 2, 0)
+    np.testing.assert_allclose(np.asarray(got["y"]), np.asarray(want_y), rtol=1e-6, atol=1e-6)
+    np.testing.assert_array_equal(np.asarray(got["k"]), np.asarray(want_k))
+    assert int(mask.sum()) > 64 or batch == 3  # the large batch needs several chunks
+    alone = jax.jit(one_env)(mask[-1], x[-1])
+    np.testing.assert_allclose(np.asarray(alone["y"]), np.asarray(want_y[-1]), rtol=1e-6, atol=1e-6)

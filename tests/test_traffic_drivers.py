@@ -215,6 +215,8 @@ def test_road_act(lanes, dead, group, x64, monkeypatch):
     slots (``dead``, one of them on top of a vehicle) must change nothing. About half the
     drivers decide on each frame here, so the deciding drivers' groups (``group`` at a time:
     the default quarter of the slots, one, or every slot at once) overflow into further rounds.
+    All 40 frames also run as one batch under ``vmap`` (groups of one: the deciding drivers of the whole batch
+    packed into several chunks, ``sparse.batch_rows``).
     """
     if group != "default":
         monkeypatch.setattr(drivers, "decision_rows", lambda n: n if group == "every" else group)
@@ -223,6 +225,7 @@ def test_road_act(lanes, dead, group, x64, monkeypatch):
     numbers = lane_numbers(network)
     aborts = changes = 0
     act = jax.jit(lambda s, is_idm, is_mdp: drivers.road_act(jroad, s, is_idm, is_mdp, idm.IDMParams()))
+    frames = []
 
     for trial in range(40):
         road = build_vehicles(rng, network, random_scene(rng, network, 16, spread=120))
@@ -243,4 +246,13 @@ def test_road_act(lanes, dead, group, x64, monkeypatch):
         for v, b in zip(road.vehicles, before):
             changes += v.target_lane_index != b
             aborts += (b != v.lane_index) and (v.target_lane_index == v.lane_index)
+        frames.append((st, is_idm, is_mdp, out))
     assert changes > 20 and aborts > 3, (changes, aborts)
+    assert len({f[0].x.shape for f in frames}) == 1  # one slot count: the frames stack into a batch
+    batch = [jax.tree_util.tree_map(lambda *a: jnp.stack(a), *(f[i] for f in frames)) for i in range(3)]
+    batched = jax.jit(jax.vmap(lambda s, is_idm, is_mdp: drivers.road_act(jroad, s, is_idm, is_mdp,
+                                                                          idm.IDMParams())))(*batch)
+    for t, (*_, out) in enumerate(frames):
+        for field in ("target_lane", "timer", "steering", "acceleration"):
+            np.testing.assert_allclose(np.asarray(getattr(batched, field))[t], np.asarray(getattr(out, field)),
+                                       rtol=0, atol=1e-12, err_msg=f"{field}, frame {t} of the batch")
