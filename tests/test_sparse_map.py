@@ -123,8 +123,8 @@ def test_vmapped_envs_equal_envs_stepped_one_by_one(name):
 @pytest.mark.parametrize("name", ["intersection-v0", "merge-v0"])
 def test_reset_where_equals_the_dense_reset_where_done(name):
     """``reset_where`` (auto-reset wrappers) against ``where(done, reset(key), 0)`` on 200 envs (capacity 25): few
-    done (one chunk), 60% done (several chunks), and unbatched with done and not done. Both batches share one
-    program each way (the reset compiles slowly)."""
+    done (one chunk), 60% done (several chunks), and (merge) unbatched with done and not done. Both batches share
+    one program each way (the intersection reset compiles slowly)."""
     from envs_jax.sparse import reset_where
 
     env = envs_jax.make(name)
@@ -141,6 +141,8 @@ def test_reset_where_equals_the_dense_reset_where_done(name):
         got, want = sparse(keys, done), dense(keys, done)
         for g, w in zip(jax.tree_util.tree_leaves(got), jax.tree_util.tree_leaves(want)):
             np.testing.assert_allclose(np.asarray(g, np.float64), np.asarray(w, np.float64), rtol=1e-6, atol=1e-6)
+    if name != "merge-v0":  # the unbatched path (a cond) is the same for every task: one task checks it
+        return
     key = jax.random.key(7)
     obs, _ = env.reset(key, params)
     one = jax.jit(lambda d: reset_where(env.reset, d, key, params))
