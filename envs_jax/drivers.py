@@ -152,6 +152,7 @@ def road_act(road: Road, st: TrafficState, is_idm, is_mdp, p: idm.IDMParams, obs
     moving = jnp.abs(st.speed) >= 1
     lane_road = jnp.asarray(road.lane_road)
     abortable = acting_idm & changing & (lane_road[st.lane] == lane_road[t1])
+
     def search(me, e):
         """Every object on the own, left, right and target lanes of the drivers ``me`` (``[G]`` slots): the
         query lanes ``[G, 4]``, the coordinates ``[G, 4, N]`` and the front and rear objects ``[G, 4]``."""
@@ -203,7 +204,7 @@ def road_act(road: Road, st: TrafficState, is_idm, is_mdp, p: idm.IDMParams, obs
                                query[:, q], target)
 
         # abort rule: another (controlled-class) vehicle is changing into the same lane, within the desired gap
-        speed, cos_v, sin_v = e["speed"], objs.cos_h[:n_slots], objs.sin_h[:n_slots]
+        speed, cos_v, sin_v = objs.speed[:n_slots], objs.cos_h[:n_slots], objs.sin_h[:n_slots]
         d = take(objs.s_own)[:, :n_slots] - s_self[:, :1]  # [G, V]: lane_distance_to(v), on the vehicle's own lane
         dv = idm.velocity_gap(take(speed)[:, None], take(cos_v)[:, None], take(sin_v)[:, None],
                               speed[None, :], cos_v[None, :], sin_v[None, :])
@@ -218,7 +219,7 @@ def road_act(road: Road, st: TrafficState, is_idm, is_mdp, p: idm.IDMParams, obs
     env = dict(lane=st.lane, left=left, right=right, has_left=has_left, has_right=has_right, t1=t1, px=px, py=py,
                circles=circles, valid=valid, objs=objs, p=p, delta=st.delta, free_me=free_me, a_lane=a_lane,
                lane_id=lane_id, fixes_lane=fixes_lane, route_id=route_id, gate=gate, moving=moving,
-               speed=st.speed, alive=st.alive, controlled=controlled_class)
+               alive=st.alive, controlled=controlled_class)
     needs = gate | (acting_idm & changing)
     if decision_rows(n_slots) == 1:  # a small road: the batch's few deciding drivers packed together
         target, rivals, a_target = batch_rows(lambda me, e: [o[0] for o in deciding(me[None], e)], needs, env)

@@ -53,16 +53,27 @@ def sparse_map(fn, mask, *args, fraction: float = 1 / 8, min_rows: int = 64):
     @f.def_vmap
     def rule(axis_size, in_batched, mask, *leaves):
         k = mask.shape[-1]
-        n = axis_size * k  # rows of the whole batch, flattened
-        mask = (mask if in_batched[0] else jnp.broadcast_to(mask, (axis_size, k))).reshape(n)
         groups = _regroup(is_table, list(zip(leaves, in_batched[1:])))  # (leaf, batched) per leaf
         getters = [_table_getter(*g[0], *g[1], axis_size, k) if table else _row_getter(*g, axis_size, k)
                    for table, g in zip(is_table, groups)]
-        out = _packed(vfn, mask, lambda rows: tuple(g(rows) for g in getters), fraction, min_rows)
-        out = jax.tree_util.tree_map(lambda o: o.reshape((axis_size, k) + o.shape[1:]), out)
-        return out, jax.tree_util.tree_map(lambda _: True, out)
+        out = _packed(vfn, _flat_mask(mask, in_batched[0], axis_size), lambda rows: tuple(g(rows) for g in getters),
+                      fraction, min_rows)
+        return _per_environment(out, axis_size, k)
 
     return f(mask, *leaves)
+
+
+def _flat_mask(mask, batched: bool, axis_size: int):
+    """A batching rule's ``[k]`` row mask (per environment, or shared) as one flat ``[axis_size k]`` mask."""
+    k = mask.shape[-1]
+    return (mask if batched else jnp.broadcast_to(mask, (axis_size, k))).reshape(axis_size * k)
+
+
+def _per_environment(out, axis_size: int, k: int):
+    """Results of the flat rows (``[axis_size k, ...]``) back to ``[axis_size, k, ...]``, with the rule's
+    batched flags."""
+    out = jax.tree_util.tree_map(lambda o: o.reshape((axis_size, k) + o.shape[1:]), out)
+    return out, jax.tree_util.tree_map(lambda _: True, out)
 
 
 def _regroup(is_table, items):
@@ -240,13 +251,12 @@ def batch_rows(fn, mask, env, fraction: float = 1 / 12, min_rows: int = 64):
     @f.def_vmap
     def rule(axis_size, in_batched, mask, *leaves):
         n = mask.shape[-1]
-        mask = (mask if in_batched[0] else jnp.broadcast_to(mask, (axis_size, n))).reshape(axis_size * n)
         batched = in_batched[1:]
         vfn = jax.vmap(one_row, (0,) + tuple(0 if b else None for b in batched))
+        # each packed row: its index within its environment, and that environment's arrays
         fetch = lambda rows: (rows % n,) + tuple(a[rows // n] if b else a for a, b in zip(leaves, batched))
-        out = _packed(vfn, mask, fetch, fraction, min_rows)
-        out = jax.tree_util.tree_map(lambda o: o.reshape((axis_size, n) + o.shape[1:]), out)
-        return out, jax.tree_util.tree_map(lambda _: True, out)
+        out = _packed(vfn, _flat_mask(mask, in_batched[0], axis_size), fetch, fraction, min_rows)
+        return _per_environment(out, axis_size, n)
 
     return f(mask, *leaves)
 
