@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
+from envs_jax import trig
 from envs_jax.lanes import FIELDS, LaneTable, distance_from_coords, float_dtype, linear_local, sine_offset, wrap_to_pi
 
 __all__ = ["local_coordinates_all", "first_argmin", "distance_with_heading_all"]
@@ -35,8 +36,8 @@ def local_coordinates_all(lanes: LaneTable, px, py, with_heading: bool = True):
             s_sin = s[..., sub]
             lat = lat.at[..., sub].add(-sine_offset(rs, s_sin))
             if with_heading:
-                h = h.at[..., sub].add(jnp.arctan(rs["amplitude"] * rs["pulsation"]
-                                                  * jnp.cos(rs["pulsation"] * s_sin + rs["phase"])))
+                h = h.at[..., sub].add(trig.arctan(rs["amplitude"] * rs["pulsation"]
+                                                  * trig.cos(rs["pulsation"] * s_sin + rs["phase"])))
         parts_s.append(s)
         parts_lat.append(lat)
         parts_h.append(h)
@@ -47,7 +48,7 @@ def local_coordinates_all(lanes: LaneTable, px, py, with_heading: bool = True):
         centers = jnp.asarray(lanes.circle_centers, dtype=float_dtype())
         dx = px - centers[:, 0]
         dy = py - centers[:, 1]
-        phi_c = jnp.arctan2(dy, dx)[..., lanes.circle_of_row]
+        phi_c = trig.arctan2(dy, dx)[..., lanes.circle_of_row]
         radius_c = jnp.sqrt(dx * dx + dy * dy)[..., lanes.circle_of_row]
         phi = r["start_phase"] + wrap_to_pi(phi_c - r["start_phase"])
         s = r["cdir"] * (phi - r["start_phase"]) * r["radius"]

@@ -15,6 +15,8 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
+from envs_jax import trig
+
 
 def rectangle(x, y, heading, length, width, c=None, s=None):
     """The 4 corners ``[4, 2]`` of ``RoadObject.polygon()`` (same order, same arithmetic).
@@ -26,7 +28,7 @@ def rectangle(x, y, heading, length, width, c=None, s=None):
     px = local[:, 0] * hl
     py = local[:, 1] * hw
     if c is None:
-        c, s = jnp.cos(heading), jnp.sin(heading)
+        s, c = trig.sin_cos(heading)
     cx = c * px + (-s) * py + x
     cy = s * px + c * py + y
     return jnp.stack([cx, cy], axis=-1)
@@ -90,7 +92,7 @@ class Shape(NamedTuple):
 
     @staticmethod
     def make(x, y, heading, speed, length, width):
-        c, s = jnp.cos(heading), jnp.sin(heading)
+        s, c = trig.sin_cos(heading)
         return Shape(x, y, speed, jnp.sqrt(length ** 2 + width ** 2),
                      rectangle(x, y, heading, length, width, c, s), speed * c, speed * s)
 

@@ -31,7 +31,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from envs_jax import idm
+from envs_jax import idm, trig
 from envs_jax import lane_locate as LL
 from envs_jax import lanes as L
 from envs_jax import neighbours as N
@@ -132,7 +132,7 @@ def road_act(road: Road, st: TrafficState, is_idm, is_mdp, p: idm.IDMParams, obs
 
     pad = lambda a, v: jnp.concatenate([a, jnp.full((n_obj - n_slots,), v, a.dtype)])
     # per object, read by every pair below (XLA would otherwise recompute the trigonometry per pair)
-    cos_h, sin_h = materialize((jnp.cos(ph), jnp.sin(ph)))
+    sin_h, cos_h = materialize(trig.sin_cos(ph))
     objs = ObjectTable(speed=pv, cos_h=cos_h, sin_h=sin_h,
                        target_speed=pad(jnp.where(controlled_class, st.target_speed, 0.0), 0.0),
                        speed_limit=pad(lanes.col("speed_limit")[st.lane], 0.0),

@@ -24,6 +24,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from envs_jax import trig
 from envs_jax import vehicle as Veh
 
 MASS = 1.0  # [kg]
@@ -39,8 +40,8 @@ LOW_SPEED = 1.0  # [m/s] below it the tyre forces become damping
 
 def derivative(heading, speed, lateral_speed, yaw_rate, steering, acceleration):
     """``derivative_func``: ``(dx, dy, dheading, dspeed, dlateral_speed, dyaw_rate)``."""
-    theta_vf = jnp.arctan2(lateral_speed + LENGTH_A * yaw_rate, speed)
-    theta_vr = jnp.arctan2(lateral_speed - LENGTH_B * yaw_rate, speed)
+    theta_vf = trig.arctan2(lateral_speed + LENGTH_A * yaw_rate, speed)
+    theta_vr = trig.arctan2(lateral_speed - LENGTH_B * yaw_rate, speed)
     f_yf = 2 * FRICTION_FRONT * (steering - theta_vf)
     f_yr = 2 * FRICTION_REAR * (0 - theta_vr)
     low = jnp.abs(speed) < LOW_SPEED
@@ -48,7 +49,7 @@ def derivative(heading, speed, lateral_speed, yaw_rate, steering, acceleration):
     f_yr = jnp.where(low, -MASS * lateral_speed + INERTIA_Z / LENGTH_A * yaw_rate, f_yr)
     d_lateral_speed = 1 / MASS * (f_yf + f_yr) - yaw_rate * speed
     d_yaw_rate = 1 / INERTIA_Z * (LENGTH_A * f_yf - LENGTH_B * f_yr)
-    c, s = jnp.cos(heading), jnp.sin(heading)
+    s, c = trig.sin_cos(heading)
     dx = c * speed + -s * lateral_speed
     dy = s * speed + c * lateral_speed
     return dx, dy, yaw_rate, acceleration + jnp.zeros_like(speed), d_lateral_speed, d_yaw_rate

@@ -29,6 +29,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from envs_jax import lanes as L
+from envs_jax import trig
 from envs_jax import vehicle as Veh
 from envs_jax.observation_config import check_features, check_features_range, check_flags, given_fields
 from envs_jax.road import Road
@@ -87,7 +88,7 @@ def _lmap(v, lo, hi):
 def feature_table(road: Road, st: TrafficState, obstacles):
     """``to_dict()`` of every road object (slots then obstacles): ``[N, 13]`` in ``FEATURES`` order."""
     lanes = road.lanes
-    c, s = jnp.cos(st.heading), jnp.sin(st.heading)
+    s, c = trig.sin_cos(st.heading)
     vx, vy = st.speed * c, st.speed * s
     long, lat = L.local_coordinates(lanes, st.lane, st.x, st.y)
     ang = L.wrap_to_pi(st.heading - L.heading_at(lanes, st.lane, long))
@@ -111,7 +112,8 @@ def feature_table(road: Road, st: TrafficState, obstacles):
     ob = jnp.asarray(obstacles, st.x.dtype)
     zero = jnp.zeros_like(ob[:, 0])
     nan = jnp.full_like(ob[:, 0], jnp.nan)
-    orows = jnp.stack([zero + 1, ob[:, 0], ob[:, 1], zero, zero, nan, jnp.cos(ob[:, 2]), jnp.sin(ob[:, 2]),
+    ob_sin, ob_cos = trig.sin_cos(ob[:, 2])
+    orows = jnp.stack([zero + 1, ob[:, 0], ob[:, 1], zero, zero, nan, ob_cos, ob_sin,
                        zero, zero, nan, nan, nan], axis=-1)
     return jnp.concatenate([rows, orows], axis=0)
 

@@ -16,7 +16,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from envs_jax import sparse
+from envs_jax import sparse, trig
 from envs_jax.all_lanes import distance_with_heading_all, first_argmin
 from envs_jax.lanes import (
     CIRCULAR,
@@ -58,7 +58,7 @@ def circle_coords(lanes: LaneTable, px, py):
     centers = jnp.asarray(lanes.circle_centers, dtype=float_dtype()).reshape(-1, 2)
     dx = px - centers[:, 0]
     dy = py - centers[:, 1]
-    return jnp.arctan2(dy, dx), jnp.sqrt(dx * dx + dy * dy)
+    return trig.arctan2(dy, dx), jnp.sqrt(dx * dx + dy * dy)
 
 
 def _circular_from_polar(r, phi_c, radius_c):
@@ -106,7 +106,7 @@ def sine_lower_bound(r, s, lat_base, heading):
     ``lat_base`` measured from its straight base line: its centre line stays within ``|A|`` of
     the base line and its heading within ``arctan(|A w|)`` of the base heading, so the cost is
     at least ``max(|lat_base| - |A|, 0) + (s out of range) + max(|wrap(psi - heading)| - arctan(|A w|), 0)``."""
-    slope = jnp.arctan(jnp.abs(r["amplitude"] * r["pulsation"]))
+    slope = trig.arctan(jnp.abs(r["amplitude"] * r["pulsation"]))
     return (jnp.maximum(jnp.abs(lat_base) - jnp.abs(r["amplitude"]), 0) + distance_from_coords(r["length"], s, 0.0)
             + jnp.maximum(jnp.abs(wrap_to_pi(heading - r["heading"])) - slope, 0))
 
@@ -125,7 +125,7 @@ def _sine_family(lanes: LaneTable, px, py, heading):
     r = {k: v[:, 0] for k, v in _cols(lanes, lanes.sine_rows, FIELDS).items()}
     s, lat = linear_local(r, px, py)
     lat = lat - sine_offset(r, s)
-    h = r["heading"] + jnp.arctan(r["amplitude"] * r["pulsation"] * jnp.cos(r["pulsation"] * s + r["phase"]))
+    h = r["heading"] + trig.arctan(r["amplitude"] * r["pulsation"] * trig.cos(r["pulsation"] * s + r["phase"]))
     cost = distance_from_coords(r["length"], s, lat) + jnp.abs(wrap_to_pi(heading - h))
     # materialised once: otherwise XLA recomputes the sine in each consumer
     cost, lat = materialize((cost, lat))

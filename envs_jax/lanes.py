@@ -21,6 +21,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from envs_jax import trig
+
 STRAIGHT, SINE, CIRCULAR = 0, 1, 2
 
 # highway-env LineType values, kept for rendering.
@@ -175,13 +177,13 @@ def linear_local(r, px, py):
 
 
 def sine_offset(r, s):
-    return r["amplitude"] * jnp.sin(r["pulsation"] * s + r["phase"])
+    return r["amplitude"] * trig.sin(r["pulsation"] * s + r["phase"])
 
 
 def _circular_local(r, px, py):
     dx = px - r["center_x"]
     dy = py - r["center_y"]
-    phi = jnp.arctan2(dy, dx)
+    phi = trig.arctan2(dy, dx)
     phi = r["start_phase"] + wrap_to_pi(phi - r["start_phase"])
     radius = jnp.sqrt(dx * dx + dy * dy)
     s = r["cdir"] * (phi - r["start_phase"]) * r["radius"]
@@ -207,8 +209,9 @@ def position(lanes: LaneTable, idx, s, lat):
     y_lin = r["start_y"] + s * r["dir_y"] + lat_lin * r["lat_y"]
     phi = r["cdir"] * s / jnp.where(r["radius"] == 0, 1.0, r["radius"]) + r["start_phase"]
     rad = r["radius"] - lat * r["cdir"]
-    x_cir = r["center_x"] + rad * jnp.cos(phi)
-    y_cir = r["center_y"] + rad * jnp.sin(phi)
+    sin_phi, cos_phi = trig.sin_cos(phi)
+    x_cir = r["center_x"] + rad * cos_phi
+    y_cir = r["center_y"] + rad * sin_phi
     circ = r["kind"] == CIRCULAR
     return jnp.where(circ, x_cir, x_lin), jnp.where(circ, y_cir, y_lin)
 
@@ -224,7 +227,7 @@ def heading_at(lanes: LaneTable, idx, s):
     kind = jnp.asarray(lanes.kind)[idx]
     h = r["heading"]
     if sine:
-        sine_term = jnp.arctan(r["amplitude"] * r["pulsation"] * jnp.cos(r["pulsation"] * s + r["phase"]))
+        sine_term = trig.arctan(r["amplitude"] * r["pulsation"] * trig.cos(r["pulsation"] * s + r["phase"]))
         h = jnp.where(kind == SINE, r["heading"] + sine_term, h)
     if circular:
         radius = jnp.where(r["radius"] == 0, 1.0, r["radius"])

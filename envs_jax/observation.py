@@ -13,12 +13,15 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
+from envs_jax import trig
+
 PERCEPTION_DISTANCE = 5.0 * 40.0  # 5 * Vehicle.MAX_SPEED
 
 
 def kinematics(x, y, heading, speed):
     """Per-vehicle feature rows ``[N, 4] = [x, y, vx, vy]``."""
-    return jnp.stack([x, y, speed * jnp.cos(heading), speed * jnp.sin(heading)], axis=-1)
+    sin_h, cos_h = trig.sin_cos(heading)
+    return jnp.stack([x, y, speed * cos_h, speed * sin_h], axis=-1)
 
 
 def observe(x, y, heading, speed, perception_distance=PERCEPTION_DISTANCE):

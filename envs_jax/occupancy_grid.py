@@ -31,6 +31,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from envs_jax import lanes as L
+from envs_jax import trig
 from envs_jax import vehicle as Veh
 from envs_jax.kinematic_obs import FEATURES as VEHICLE_FEATURES
 from envs_jax.kinematic_obs import feature_table
@@ -136,7 +137,7 @@ def fma(a, b, c):
 def _cell(cfg: OccupancyGridConfig, ox, oy, heading, dx, dy):
     """``pos_to_index`` of offsets ``(dx, dy)`` from the observer: integer cells ``(i, j)`` and a validity mask."""
     if cfg.align_to_vehicle_axes:
-        c, s = jnp.cos(heading), jnp.sin(heading)
+        s, c = trig.sin_cos(heading)
         dx, dy = fma(c, dx, s * dy), fma(-s, dx, c * dy)
     (x0, _), (y0, _) = cfg.grid_size
     i = jnp.floor((dx - x0) / cfg.grid_step[0])

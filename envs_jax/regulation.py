@@ -27,6 +27,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from envs_jax import lanes as L
+from envs_jax import trig
 from envs_jax import vehicle as Veh
 from envs_jax.road import Road
 from envs_jax.sparse import TableRows, sparse_map
@@ -158,7 +159,7 @@ def _conflicts_dense(px, py, ph, alive):
     """:func:`conflicts` testing every pair: ``[T, V, V, 9]`` points."""
     def at_time(xyh):  # every slot's predicted rectangle at one time: heading cosine, sine and its 9 points
         x, y, h = xyh
-        c, s = jnp.cos(h), jnp.sin(h)
+        s, c = trig.sin_cos(h)
         return (c, s) + _corners(x, y, c, s)
 
     # one time per loop iteration: the loop's outputs are materialised, so the [T, V, V, 9] tests below read them
@@ -192,7 +193,8 @@ def _conflicts_sparse(px, py, ph, alive):
         return jnp.any(near_t & (a_in_b | b_in_a))
 
     # [V, T, 4]: each slot's trigonometry once (not per pair); the pairs' rows are gathered only where needed
-    table = jnp.stack([px, py, jnp.cos(ph), jnp.sin(ph)], axis=-1)
+    sin_h, cos_h = trig.sin_cos(ph)
+    table = jnp.stack([px, py, cos_h, sin_h], axis=-1)
     fraction = min(1 / 32, CONFLICT_ROWS_PER_VEHICLE * n / max(len(iu), 1))
     hit = sparse_map(pair, candidate, TableRows(table, jnp.asarray(iu)), TableRows(table, jnp.asarray(ju)),
                      fraction=fraction)
@@ -203,7 +205,7 @@ def _conflicts_sparse(px, py, ph, alive):
 def yielding_side(priority, x, y, heading):
     """``respect_priorities(v_i, v_j)`` for every pair: True where ``v_i`` yields to ``v_j`` (``[V, V]``)."""
     pi, pj = priority[:, None], priority[None, :]
-    c, s = jnp.cos(heading), jnp.sin(heading)
+    s, c = trig.sin_cos(heading)
     dx, dy = x[None, :] - x[:, None], y[None, :] - y[:, None]
     front_ij = c[:, None] * dx + s[:, None] * dy  # v_i.front_distance_to(v_j)
     front_ji = -(c[None, :] * dx + s[None, :] * dy)  # v_j.front_distance_to(v_i)

@@ -19,6 +19,7 @@ import numpy as np
 
 from envs_jax import lane_locate as LL
 from envs_jax import lanes as L
+from envs_jax import trig
 
 LENGTH = 5.0
 WIDTH = 2.0
@@ -65,13 +66,14 @@ def bicycle_step(x, y, heading, speed, steering, acceleration, crashed, impact_x
     v += a dt. Returns the new kinematic state and the clipped stored action.
     """
     steering, acceleration = clip_actions(speed, steering, acceleration, crashed)
-    beta = jnp.arctan(0.5 * jnp.tan(steering))
-    x = x + speed * jnp.cos(heading + beta) * dt
-    y = y + speed * jnp.sin(heading + beta) * dt
+    beta = trig.arctan(0.5 * trig.tan(steering))
+    sin_hb, cos_hb = trig.sin_cos(heading + beta)
+    x = x + speed * cos_hb * dt
+    y = y + speed * sin_hb * dt
     x = jnp.where(has_impact, x + impact_x, x)
     y = jnp.where(has_impact, y + impact_y, y)
     crashed = crashed | has_impact
-    heading = heading + speed * jnp.sin(beta) / (LENGTH / 2) * dt
+    heading = heading + speed * trig.sin(beta) / (LENGTH / 2) * dt
     speed = speed + acceleration * dt
     return x, y, heading, speed, crashed, steering, acceleration
 
@@ -97,15 +99,15 @@ def steering_control(lanes: L.LaneTable, target_lane, s, lat, heading, speed):
     """
     future_heading = L.heading_at(lanes, target_lane, s + speed * TAU_PURSUIT)
     lateral_speed_command = -KP_LATERAL * lat
-    heading_command = jnp.arcsin(jnp.clip(lateral_speed_command / not_zero(speed), -1, 1))
+    heading_command = trig.arcsin(jnp.clip(lateral_speed_command / not_zero(speed), -1, 1))
     heading_ref = future_heading + jnp.clip(heading_command, -jnp.pi / 4, jnp.pi / 4)
     heading_rate_command = KP_HEADING * L.wrap_to_pi(heading_ref - heading)
-    slip_angle = jnp.arcsin(jnp.clip(LENGTH / 2 / not_zero(speed) * heading_rate_command, -1, 1))
+    slip_angle = trig.arcsin(jnp.clip(LENGTH / 2 / not_zero(speed) * heading_rate_command, -1, 1))
     # float32 rounds arcsin(+-1) to a value just *beyond* pi/2, whose tan has the wrong sign and
     # would steer full lock the wrong way; keep |slip| strictly below pi/2 (a no-op in float64).
     limit = below_half_pi(slip_angle.dtype)
     slip_angle = jnp.clip(slip_angle, -limit, limit)
-    steering = jnp.arctan(2 * jnp.tan(slip_angle))
+    steering = trig.arctan(2 * trig.tan(slip_angle))
     return jnp.clip(steering, -MAX_STEERING_ANGLE, MAX_STEERING_ANGLE)
 
 

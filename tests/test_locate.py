@@ -61,11 +61,13 @@ def test_locate_equals_brute_force_x64(name, x64):
 
 
 def _assert_same_lane_up_to_ties(lane, ref_lane, cost):
-    """Equal lanes, except where the two lanes' costs tie to float32 round-off (poses on lane junctions)."""
+    """Equal lanes, except where the two lanes' costs tie to float32 round-off (poses on lane junctions: about half
+    of :func:`_poses`' placed poses sit on a lane's end, where the next lane starts; with one heading shared by every
+    pose, as in :func:`test_locate_batched_rules_agree`, 3.5% of all poses tie there)."""
     lane, ref_lane, cost = np.asarray(lane), np.asarray(ref_lane), np.asarray(cost)
     diff = np.nonzero(lane != ref_lane)[0]
     gap = np.abs(cost[diff, lane[diff]] - cost[diff, ref_lane[diff]])
-    assert len(diff) <= 0.03 * len(lane) and np.all(gap <= 1e-4 * (1 + cost[diff, ref_lane[diff]])), diff
+    assert len(diff) <= 0.05 * len(lane) and np.all(gap <= 1e-4 * (1 + cost[diff, ref_lane[diff]])), diff
     return lane == ref_lane
 
 

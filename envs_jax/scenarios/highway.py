@@ -27,7 +27,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from envs_jax import kinematic_obs
+from envs_jax import kinematic_obs, trig
 from envs_jax import lanes as L
 from envs_jax.road import RoadNetwork
 from envs_jax.scenarios.config_values import (
@@ -193,7 +193,7 @@ class Highway(Task):
         dtype = state.x.dtype
         lane_id = jnp.asarray(self.road.lane_id)[state.target_lane[idx]].astype(dtype)
         right_lane = lane_id / max(self.lanes_count - 1, 1)
-        forward = state.speed[idx] * jnp.cos(state.heading[idx])
+        forward = state.speed[idx] * trig.cos(state.heading[idx])
         lo, hi = params.reward_speed_range
         high_speed = jnp.clip(0 + (forward - lo) * (1 - 0) / (hi - lo), 0, 1)
         col = crashed.astype(dtype)
