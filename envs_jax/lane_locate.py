@@ -68,9 +68,9 @@ def _circular_from_polar(r, phi_c, radius_c):
     return s, lat
 
 
-def _pick_circle(values, c):
-    """``values[..., c]`` over the (few, static) circle centres as a chain of selections: it
-    broadcasts ``c`` against ``values[..., j]`` without gathering at the broadcast shape."""
+def _pick_column(values, c):
+    """``values[..., c]`` over a few static columns (circle centres, sine lanes) as a chain of selections:
+    it broadcasts ``c`` against ``values[..., j]`` without gathering at the broadcast shape."""
     out = values[..., 0]
     for j in range(1, values.shape[-1]):
         out = jnp.where(c == j, values[..., j], out)
@@ -94,11 +94,27 @@ def lane_coords(lanes: LaneTable, px, py, circles, idx, sine: bool = True):
         lat = jnp.where(kind == SINE, lat - sine_offset(r, s), lat)
     if lanes.circular_rows.size:
         c = jnp.asarray(np.maximum(lanes.circle_of_lane, 0))[idx]
-        phi_c, radius_c = _pick_circle(circles[0], c), _pick_circle(circles[1], c)
+        phi_c, radius_c = _pick_column(circles[0], c), _pick_column(circles[1], c)
         s_c, lat_c = _circular_from_polar(r, phi_c, radius_c)
         circ = kind == CIRCULAR
         s, lat = jnp.where(circ, s_c, s), jnp.where(circ, lat_c, lat)
     return s, lat
+
+
+def sine_offsets(lanes: LaneTable, px, py, idx):
+    """The sine-lane offset ``A sin(w s + phi)`` of each point ``(px, py)`` (``[N]``) on lane ``idx`` (table
+    rows, ``[..., 1]``): ``[..., N]``, 0 where ``idx`` is not a sine lane. The offsets are computed once per point
+    and sine lane (``[N, S]``) and picked per lane, where :func:`lane_coords` would evaluate a sine per point and
+    lane of ``idx``; subtracted from ``lane_coords(..., sine=False)``'s lateral coordinate they give its exact
+    ``sine=True`` value. Needs a road with sine lanes."""
+    r = {k: v[:, 0] for k, v in _cols(lanes, lanes.sine_rows, ("start_x", "start_y", "dir_x", "dir_y", "lat_x",
+                                                              "lat_y", "amplitude", "pulsation", "phase")).items()}
+    s, _ = linear_local(r, jnp.asarray(px)[..., None], jnp.asarray(py)[..., None])
+    offsets = sine_offset(r, s)  # [N, S]
+    sine_of_row = np.full(lanes.size, -1, np.int32)
+    sine_of_row[lanes.sine_rows] = np.arange(lanes.sine_rows.size, dtype=np.int32)
+    which = jnp.asarray(sine_of_row)[idx]
+    return _pick_column(offsets, which), which >= 0
 
 
 def sine_lower_bound(r, s, lat_base, heading):

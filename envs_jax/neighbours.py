@@ -29,7 +29,13 @@ def coordinates_on(lanes: L.LaneTable, query_lane, px, py, circles=None):
         circles = LL.circle_coords(lanes, px, py)  # [N, C]: once per object, not per query lane
     # lane rows gathered per query lane ([..., 1]) and broadcast over the objects; only the
     # lane families the road has (a straight road costs no trigonometry)
-    s, lat = LL.lane_coords(lanes, px, py, circles, q)
+    # with fewer sine lanes than query lanes, a sine lane's offset once per object and sine lane
+    # rather than once per object and query lane (the same values)
+    per_object = 0 < lanes.sine_rows.size < q.size
+    s, lat = LL.lane_coords(lanes, px, py, circles, q, sine=not per_object)
+    if per_object:
+        offset, on_sine = LL.sine_offsets(lanes, px, py, q)
+        lat = jnp.where(on_sine, lat - offset, lat)
     return jnp.broadcast_to(s, shape), jnp.broadcast_to(lat, shape)
 
 

@@ -157,19 +157,24 @@ def test_lane_coords_equal_local_coordinates(name, x64):
         np.testing.assert_allclose(np.asarray(lat), np.asarray(elat), rtol=0, atol=1e-9)
 
 
-@pytest.mark.parametrize("name", ["roundabout", "racetrack"])
-def test_lane_coords_broadcast_query_lanes(name, x64):
+@pytest.mark.parametrize("name, n_query", [("merge", None), ("roundabout", None), ("roundabout", 5),
+                                           ("racetrack", None)])
+def test_lane_coords_broadcast_query_lanes(name, n_query, x64):
     """Few query lanes against many points (``idx [Q, 1]``, ``px [N]``, circle coordinates ``[N, C]``, as
-    ``neighbours.coordinates_on`` calls it) = ``local_coordinates`` point by point, on every lane."""
+    ``neighbours.coordinates_on`` calls it) = ``local_coordinates`` point by point, on every lane (or on
+    ``n_query`` of them, the sine lanes among them: with fewer query lanes than sine lanes the sine offsets are
+    evaluated per query lane, otherwise once per point and sine lane)."""
     from envs_jax import neighbours
     lanes = envs_jax.make(name).road.lanes
-    assert lanes.circle_centers.shape[0] >= 1
+    assert lanes.sine_rows.size or lanes.circle_centers.shape[0]
     rng = np.random.default_rng(11)
     lo, hi = BOX[name]
     pts = jnp.asarray(rng.uniform(lo, hi, size=(200, 2)))
-    query = jnp.arange(lanes.size, dtype=jnp.int32)
+    rows = np.arange(lanes.size) if n_query is None else np.concatenate(
+        [lanes.sine_rows[:3], np.setdiff1d(np.arange(lanes.size), lanes.sine_rows)[:n_query - 3]])
+    query = jnp.asarray(rows, jnp.int32)
     s, lat = neighbours.coordinates_on(lanes, query, pts[:, 0], pts[:, 1])
-    assert s.shape == (lanes.size, 200)
+    assert s.shape == (len(rows), 200)
     idx = jnp.broadcast_to(query[:, None], s.shape)
     px, py = jnp.broadcast_to(pts[:, 0], s.shape), jnp.broadcast_to(pts[:, 1], s.shape)
     es, elat = L.local_coordinates(lanes, idx, px, py)
