@@ -8,10 +8,13 @@ about 1 ns. Each float32 result is computed once into a buffer (:func:`~envs_jax
 counts the polynomials as cheap and would otherwise repeat a whole chain of them inside every fusion that reads it,
 which made the step slower than XLA's own functions (docs/performance.md, "Trigonometry in plain arithmetic").
 Their error is a few float32 ulps (tests/test_trig.py bounds it against float64 numpy), the same order as XLA's.
+A float32 call on fewer than :data:`SMALL` elements, counted over the whole batch under ``vmap``, uses XLA's own
+function: on one or a few two-vehicle environments the polynomials' extra kernels cost more than they save.
 """
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -59,10 +62,8 @@ def _cos_poly(z):
     return 1 - 0.5 * z + z * z * _poly(z, (2.443315711809948e-5, -1.388731625493765e-3, 4.166664568298827e-2))
 
 
-def sin_cos(x):
+def _sin_cos_poly(x):
     """``(sin x, cos x)`` from one reduction."""
-    if _exact(x):
-        return jnp.sin(x), jnp.cos(x)
     r, q = _reduce(x)
     z = r * r
     s, c = _sin_poly(r, z), _cos_poly(z)
@@ -74,17 +75,7 @@ def sin_cos(x):
     return materialize((jnp.where(x == 0, x, sin_x), cos_x))  # sin(-0) = -0
 
 
-def sin(x):
-    return jnp.sin(x) if _exact(x) else sin_cos(x)[0]
-
-
-def cos(x):
-    return jnp.cos(x) if _exact(x) else sin_cos(x)[1]
-
-
-def tan(x):
-    if _exact(x):
-        return jnp.tan(x)
+def _tan_poly(x):
     r, q = _reduce(x)
     z = r * r
     t = r + r * z * _poly(z, (9.38540185543e-3, 3.11992232697e-3, 2.44301354525e-2, 5.34112807005e-2,
@@ -101,9 +92,7 @@ def _atan_ratio(n, d):
     return jnp.where(big, _PIO4 + (a + _PIO4_LO), a)
 
 
-def arctan(x):
-    if _exact(x):
-        return jnp.arctan(x)
+def _arctan_poly(x):
     a = jnp.abs(x)
     inverted = a > 1
     r = _atan_ratio(jnp.where(inverted, 1, a), jnp.where(inverted, a, 1))
@@ -111,11 +100,8 @@ def arctan(x):
     return materialize(jnp.where(x < 0, -r, r))  # keeps NaN, and the sign of zero
 
 
-def arctan2(y, x):
-    """``arctan2(y, x)``: the angle of ``(x, y)`` in ``[-pi, pi]`` (both zero: 0 or pi, as the sign of ``x``)."""
-    if _exact(y) and _exact(x):
-        return jnp.arctan2(y, x)
-    y, x = jnp.asarray(y, jnp.float32), jnp.asarray(x, jnp.float32)
+def _arctan2_poly(y, x):
+    """The angle of ``(x, y)`` in ``[-pi, pi]`` (both zero: 0 or pi, as the sign of ``x``)."""
     ax, ay = jnp.abs(x), jnp.abs(y)
     lo, hi = jnp.minimum(ax, ay), jnp.maximum(ax, ay)
     r = _atan_ratio(lo, jnp.where(hi == 0, 1, hi))  # both zero: 0; NaN stays NaN
@@ -124,10 +110,8 @@ def arctan2(y, x):
     return materialize(jnp.where(jnp.signbit(y), -r, r))
 
 
-def arcsin(x):
+def _arcsin_poly(x):
     """``arcsin x`` for ``-1 <= x <= 1``."""
-    if _exact(x):
-        return jnp.arcsin(x)
     a = jnp.abs(x)
     high = a > 0.5
     z = jnp.where(high, 0.5 * (1 - a), a * a)
@@ -135,3 +119,69 @@ def arcsin(x):
     y = s + s * z * _poly(z, (4.2163199048e-2, 2.4181311049e-2, 4.5470025998e-2, 7.4953002686e-2, 1.6666752422e-1))
     y = jnp.where(high, _PIO2 - (2 * y - _PIO2_LO), y)
     return materialize(jnp.where(x < 0, -y, y))
+
+
+# Below this many elements (counting the whole batch under ``vmap``) a float32 call uses XLA's own function:
+# one fused operation, where a polynomial adds kernels and a buffer whose fixed cost outweighs its per-element
+# gain on a few vehicles (one unbatched two-vehicle environment ran at half speed; docs/performance.md).
+SMALL = 32
+
+
+def _by_size(poly, xla):
+    """``poly`` on float32 arrays of at least :data:`SMALL` elements, ``xla`` on smaller ones. Under ``vmap`` the
+    choice is made on the batched shape (a custom batching rule that calls the function again on the whole
+    batch), where the function body alone would only see one environment's few vehicles."""
+
+    def unbatched(*xs):
+        return poly(*xs) if max(x.size for x in xs) >= SMALL else xla(*xs)
+
+    f = jax.custom_batching.custom_vmap(unbatched)
+
+    @f.def_vmap
+    def rule(axis_size, in_batched, *xs):
+        xs = [x if b else jnp.broadcast_to(x, (axis_size,) + x.shape) for x, b in zip(xs, in_batched)]
+        out = f(*xs)
+        return out, jax.tree_util.tree_map(lambda _: True, out)
+
+    def call(*xs):
+        return f(*jnp.broadcast_arrays(*[jnp.asarray(x, jnp.float32) for x in xs]))
+
+    return call
+
+
+_sin_cos = _by_size(_sin_cos_poly, lambda x: (jnp.sin(x), jnp.cos(x)))
+_tan = _by_size(_tan_poly, jnp.tan)
+_arctan = _by_size(_arctan_poly, jnp.arctan)
+_arctan2 = _by_size(_arctan2_poly, jnp.arctan2)
+_arcsin = _by_size(_arcsin_poly, jnp.arcsin)
+
+
+def sin_cos(x):
+    """``(sin x, cos x)`` (float32: from one reduction)."""
+    return (jnp.sin(x), jnp.cos(x)) if _exact(x) else _sin_cos(x)
+
+
+def sin(x):
+    return jnp.sin(x) if _exact(x) else _sin_cos(x)[0]
+
+
+def cos(x):
+    return jnp.cos(x) if _exact(x) else _sin_cos(x)[1]
+
+
+def tan(x):
+    return jnp.tan(x) if _exact(x) else _tan(x)
+
+
+def arctan(x):
+    return jnp.arctan(x) if _exact(x) else _arctan(x)
+
+
+def arctan2(y, x):
+    """``arctan2(y, x)``: the angle of ``(x, y)`` in ``[-pi, pi]`` (both zero: 0 or pi, as the sign of ``x``)."""
+    return jnp.arctan2(y, x) if _exact(y) and _exact(x) else _arctan2(y, x)
+
+
+def arcsin(x):
+    """``arcsin x`` for ``-1 <= x <= 1``."""
+    return jnp.arcsin(x) if _exact(x) else _arcsin(x)

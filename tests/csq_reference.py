@@ -1,9 +1,9 @@
 """Short CSQ programs whose outputs are pinned in ``tests/data/csq_two_agent_reference.npz``.
 
 The file was written by the two-agent CSQ before hierarchies existed (``python -m tests.csq_reference``); the
-tests compare today's outputs to it bit for bit, so the two-agent path keeps giving the same results. It was
-written again when the simulator's float32 trigonometry became polynomials (envs_jax/trig.py): the solver's outputs
-and every episode's events stayed the same, the distances driven and the learner's values moved in the last digits.
+tests compare today's outputs to it bit for bit, so the two-agent path keeps giving the same results. These runs
+step two environments of two vehicles, below the size at which the simulator's float32 trigonometry switches to
+polynomials (envs_jax/trig.py, ``SMALL``), so they use XLA's own functions as when the file was written.
 """
 
 from __future__ import annotations
