@@ -111,9 +111,7 @@ def sine_offsets(lanes: LaneTable, px, py, idx):
                                                               "lat_y", "amplitude", "pulsation", "phase")).items()}
     s, _ = linear_local(r, jnp.asarray(px)[..., None], jnp.asarray(py)[..., None])
     offsets = sine_offset(r, s)  # [N, S]
-    sine_of_row = np.full(lanes.size, -1, np.int32)
-    sine_of_row[lanes.sine_rows] = np.arange(lanes.sine_rows.size, dtype=np.int32)
-    which = jnp.asarray(sine_of_row)[idx]
+    which = jnp.asarray(lanes.sine_of_lane)[idx]
     return _pick_column(offsets, which), which >= 0
 
 

@@ -130,6 +130,8 @@ class LaneTable:
         self.unpermute = np.argsort(order).astype(np.int32)  # family-concatenated -> table order
         self.straight_rows = np.nonzero(self.kind == STRAIGHT)[0].astype(np.int32)
         self.sine_rows = np.nonzero(self.kind == SINE)[0].astype(np.int32)
+        self.sine_of_lane = -np.ones(self.size, dtype=np.int32)  # table row -> index among the sine lanes (-1: none)
+        self.sine_of_lane[self.sine_rows] = np.arange(self.sine_rows.size, dtype=np.int32)
 
     def np_col(self, name: str) -> np.ndarray:
         return self.table[:, COLUMN[name]]

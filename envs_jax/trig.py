@@ -132,8 +132,8 @@ def _by_size(poly, xla):
     choice is made on the batched shape (a custom batching rule that calls the function again on the whole
     batch), where the function body alone would only see one environment's few vehicles."""
 
-    def unbatched(*xs):
-        return poly(*xs) if max(x.size for x in xs) >= SMALL else xla(*xs)
+    def unbatched(*xs):  # the arguments share one shape (``call`` broadcasts them)
+        return poly(*xs) if xs[0].size >= SMALL else xla(*xs)
 
     f = jax.custom_batching.custom_vmap(unbatched)
 
