@@ -17,6 +17,7 @@ import numpy as np
 
 from envs_jax import collision
 from envs_jax import vehicle as Veh
+from envs_jax.materialize import materialize
 from envs_jax.sparse import TableRows, sparse_map
 
 # Separating-axis rows packed per vehicle slot and env under vmap (more run in extra chunks).
@@ -62,6 +63,7 @@ def collide(x, y, heading, speed, alive, crashed, check_collisions, obstacles, d
     diagonal = jnp.sqrt(pl ** 2 + pw ** 2)
     ends = lambda sel: collision.Shape(sel(px), sel(py), sel(pv), sel(diagonal), None, None, None)
     close = collision.near(ends(lambda a: a[:n_slots, None]), ends(lambda a: a[None, :]), dt) & active
+    close = materialize(close)  # once, in this layout: sparse_map's packing reads it in another order
 
     def separating_axis(pa, pb):
         sa, sb = collision.Shape.make(*pa), collision.Shape.make(*pb)

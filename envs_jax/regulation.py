@@ -29,6 +29,7 @@ import numpy as np
 from envs_jax import lanes as L
 from envs_jax import trig
 from envs_jax import vehicle as Veh
+from envs_jax.materialize import materialize
 from envs_jax.road import Road
 from envs_jax.sparse import TableRows, sparse_map
 from envs_jax.traffic_state import TrafficState
@@ -179,6 +180,7 @@ def _conflicts_sparse(px, py, ph, alive):
     n = px.shape[0]
     iu, ju = (a.astype(np.int32) for a in np.triu_indices(n, 1))
     candidate = jnp.any(_near(px, py), axis=0)[iu, ju] & alive[iu] & alive[ju]
+    candidate = materialize(candidate)  # once: sparse_map's packing reads it in another order
 
     def rectangle(r):  # one vehicle's rows [T, 4]: centre, heading cosine and sine, the 9 points [T, 9]
         x, y, c, s = r[:, 0], r[:, 1], r[:, 2], r[:, 3]

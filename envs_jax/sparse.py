@@ -6,6 +6,7 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from envs_jax.materialize import materialize
 
@@ -173,6 +174,22 @@ def _words(mask):
     return jnp.sum(x << jnp.arange(_WORD, dtype=jnp.uint32)[:, None], axis=0, dtype=jnp.uint32)
 
 
+def running_count(mask):
+    """``jnp.cumsum(mask)`` (``[n]`` bool, int32) for short masks (one environment's vehicle slots): the mask packed
+    into 32-bit words of consecutive rows, each row's count the bit count of its word up to its own bit plus the
+    words before. XLA:CPU computes ``cumsum`` as a tree of reduce-windows, several times slower at this size."""
+    n = mask.shape[0]
+    n_words = -(-n // _WORD)
+    bits = jnp.pad(mask, (0, n_words * _WORD - n)).reshape(n_words, _WORD).astype(jnp.uint32)
+    words = jnp.sum(bits << jnp.arange(_WORD, dtype=jnp.uint32), axis=1, dtype=jnp.uint32)
+    counts = jax.lax.population_count(words).astype(jnp.int32)
+    before = jnp.cumsum(counts) - counts if n_words > 1 else jnp.zeros(1, jnp.int32)
+    up_to = (np.uint64(2) << np.arange(_WORD, dtype=np.uint64)) - 1  # bits 0..i of a word
+    per_row = lambda a: jnp.broadcast_to(a[:, None], (n_words, _WORD)).reshape(n_words * _WORD)[:n]
+    own = jax.lax.population_count(per_row(words) & jnp.asarray(np.tile(up_to.astype(np.uint32), n_words)[:n]))
+    return own.astype(jnp.int32) + per_row(before)
+
+
 def _select_bit(word, j):
     """Position of the ``j``-th (from 0) set bit of ``word`` (``uint32``), by halving the bit range."""
     pos = jnp.zeros(jnp.shape(j), jnp.uint32)
@@ -209,7 +226,7 @@ def grouped_rows(fn, mask, size: int):
     if size >= n:
         out = fn(every)
         return jax.tree_util.tree_map(lambda r: jnp.where(_column(mask, r), r, jnp.zeros_like(r)), out)
-    rank = jnp.cumsum(mask.astype(jnp.int32)) - 1  # order of each masked row among the masked rows
+    rank = running_count(mask) - 1  # order of each masked row among the masked rows
     count = rank[-1] + 1
     slots = jnp.arange(size, dtype=jnp.int32)
 

@@ -10,7 +10,7 @@ import pytest
 
 import envs_jax
 from envs_jax.env import sparse_map
-from envs_jax.sparse import _select_bit, _words, batch_rows, grouped_rows
+from envs_jax.sparse import _select_bit, _words, batch_rows, grouped_rows, running_count
 
 
 def _fn(x, y):
@@ -84,6 +84,20 @@ def test_words_and_bit_select_find_every_masked_row(n):
         np.testing.assert_array_equal(np.sort(rows), np.flatnonzero(m))
 
 
+@pytest.mark.parametrize("n", [1, 5, 31, 32, 33, 51, 64, 100])
+def test_running_count_equals_cumsum(n):
+    """``running_count`` (the rank of each masked row in ``grouped_rows``) against numpy's cumulative sum, for empty,
+    sparse, half and full masks, alone and under ``vmap``."""
+    rng = np.random.default_rng(n)
+    masks = np.stack([rng.uniform(size=n) < p for p in (0.0, 0.1, 0.5, 1.0)])
+    want = np.cumsum(masks, axis=1)
+    got = np.asarray(jax.jit(jax.vmap(running_count))(jnp.asarray(masks)))
+    assert got.dtype == np.int32
+    np.testing.assert_array_equal(got, want)
+    for m, w in zip(masks, want):
+        np.testing.assert_array_equal(np.asarray(jax.jit(running_count)(jnp.asarray(m))), w)
+
+
 @pytest.mark.parametrize("name", ["merge", pytest.param("roundabout", marks=pytest.mark.slow),  # discrete and
                                   pytest.param("intersection", marks=pytest.mark.slow), "racetrack"])  # continuous
 def test_vmapped_envs_equal_envs_stepped_one_by_one(name):
@@ -120,11 +134,11 @@ def test_vmapped_envs_equal_envs_stepped_one_by_one(name):
         assert np.asarray(batched[2]).any()  # and crashes (the obstacle): the SAT path
 
 
-@pytest.mark.parametrize("name", ["intersection-v0", "merge-v0"])
+@pytest.mark.parametrize("name", [pytest.param("intersection-v0", marks=pytest.mark.slow), "merge-v0"])
 def test_reset_where_equals_the_dense_reset_where_done(name):
     """``reset_where`` (auto-reset wrappers) against ``where(done, reset(key), 0)`` on 200 envs (capacity 25): few
     done (one chunk), 60% done (several chunks), and (merge) unbatched with done and not done. Both batches share
-    one program each way (the intersection reset compiles slowly)."""
+    one program each way. The intersection reset (a warm-up simulation) compiles for about a minute: on demand."""
     from envs_jax.sparse import reset_where
 
     env = envs_jax.make(name)
