@@ -37,8 +37,8 @@ def collide(x, y, heading, speed, alive, crashed, check_collisions, obstacles, d
     """Impacts ``[V, 2]``, their flags and the updated ``crashed`` after one frame's checks.
 
     ``check_collisions``: static ``[V]`` flags; ``obstacles``: ``[O, 5]`` rows
-    ``x, y, heading, length, width`` or None. Pairs are held as a dense ``[V, V + O]`` table
-    (broadcasts and reductions, no per-pair gathers or scatters).
+    ``x, y, heading, length, width`` or None. The prefilter runs over a dense ``[V, V + O]`` pair table
+    (broadcasts); the separating-axis test and the per-vehicle results only for the close pairs.
     """
     n_slots = x.shape[0]
     dtype = x.dtype
@@ -65,26 +65,31 @@ def collide(x, y, heading, speed, alive, crashed, check_collisions, obstacles, d
     close = collision.near(ends(lambda a: a[:n_slots, None]), ends(lambda a: a[None, :]), dt) & active
     close = materialize(close)  # once, in this layout: sparse_map's packing reads it in another order
 
-    def separating_axis(pa, pb):
+    def separating_axis(pa, pb, key):
         sa, sb = collision.Shape.make(*pa), collision.Shape.make(*pb)
         disp_a = jnp.stack([sa.vx, sa.vy]) * dt
         disp_b = jnp.stack([sb.vx, sb.vy]) * dt
-        return collision.polygons_intersecting(sa.corners, sb.corners, disp_a, disp_b)
+        inter, will, trans = collision.polygons_intersecting(sa.corners, sb.corners, disp_a, disp_b)
+        # for both vehicles of the pair: crashed, and this pair's loop position + 1 where it gives an impact
+        crash = inter.astype(jnp.int32)
+        last = jnp.where(will, key + 1, 0)
+        return trans, (jnp.stack([crash, crash]), jnp.stack([last, last]))
 
     # chunks sized by the vehicles, not the pairs: each vehicle has a few close neighbours, not O(V)
     n_rows = n_slots * n_obj
     fraction = min(1 / 32, SAT_ROWS_PER_VEHICLE * n_slots / n_rows)
+    flat = np.arange(n_rows, dtype=np.int32)  # a pair's position in the loop
+    first, second = flat // n_obj, flat % n_obj
+    # per-vehicle maxima, scattered from the close pairs only: segment v (as the pair's first object) and
+    # V + v (as its second; obstacles have none)
+    segments = np.stack([first, np.where(second < n_slots, n_slots + second, -1)], axis=-1)
     # poses gathered only for the packed close pairs
-    flat = np.arange(n_rows, dtype=np.int32)
-    rows_a, rows_b = TableRows(pose, jnp.asarray(flat // n_obj)), TableRows(pose, jnp.asarray(flat % n_obj))
-    inter, will, trans = sparse_map(separating_axis, close.reshape(n_rows), rows_a, rows_b, fraction=fraction)
-    inter, will = inter.reshape(n_slots, n_obj), will.reshape(n_slots, n_obj)  # false where not close
-
-    crashed = crashed | jnp.any(inter, axis=1) | jnp.any(inter[:, :n_slots], axis=0)
+    rows_a, rows_b = TableRows(pose, jnp.asarray(first)), TableRows(pose, jnp.asarray(second))
+    trans, (crash, last) = sparse_map(separating_axis, close.reshape(n_rows), rows_a, rows_b, jnp.asarray(flat),
+                                      fraction=fraction, segments=segments, n_segments=2 * n_slots)
+    crashed = crashed | (crash[:n_slots] > 0) | (crash[n_slots:] > 0)
     # a vehicle's impact is that of the last pair (loop order) involving it
-    key = jnp.where(will, jnp.asarray(flat.reshape(n_slots, n_obj)), -1)
-    last_a = jnp.max(key, axis=1)  # as the first object of the pair
-    last_b = jnp.max(key[:, :n_slots], axis=0)  # as the second
+    last_a, last_b = last[:n_slots] - 1, last[n_slots:] - 1  # as the first object of the pair, as the second
     from_a = last_a >= last_b
     last = jnp.maximum(last_a, last_b)
     c = jnp.maximum(last, 0)

@@ -23,7 +23,7 @@ class TableRows(NamedTuple):
     index: jax.Array
 
 
-def sparse_map(fn, mask, *args, fraction: float = 1 / 8, min_rows: int = 64):
+def sparse_map(fn, mask, *args, fraction: float = 1 / 8, min_rows: int = 64, segments=None, n_segments: int = 0):
     """``fn`` applied to the rows ``k`` of ``args`` (leading axis) where ``mask[k]``; zeros elsewhere.
 
     For work that is needed only rarely but would otherwise run for every
@@ -40,14 +40,24 @@ def sparse_map(fn, mask, *args, fraction: float = 1 / 8, min_rows: int = 64):
     arithmetic differently (an ulp at most; tests/test_sparse_map.py). An argument may be
     a :class:`TableRows` (rows gathered from a table only where needed); an argument without
     the batch axis is shared by every environment and is not copied per environment.
+
+    With ``segments`` (static ``[k, m]`` ints: the ``m`` segments of ``0 .. n_segments - 1`` each row contributes to,
+    ``-1``: none), ``fn`` returns ``(row_output, values)``, ``values`` a pytree of ``[m]`` non-negative numbers, and
+    the result is ``(row outputs, maxima)``: each leaf of ``maxima`` (``[n_segments]``) is the largest value that a
+    masked row gives its segment, 0 where none does. The maxima are scattered from the packed rows, so a per-vehicle
+    reduction over a pair table (a crash, the last impact) never reads the whole table.
     """
     vfn = jax.vmap(fn)
     is_table = tuple(isinstance(a, TableRows) for a in args)
     leaves = [x for a in args for x in ((a.table, a.index) if isinstance(a, TableRows) else (a,))]
 
+    seg = None if segments is None else np.asarray(segments, np.int32)  # [k, m]: each row's segments (-1: none)
+
     def unbatched(mask, *leaves):
         rows = [g[0][g[1]] if table else g for table, g in zip(is_table, _regroup(is_table, leaves))]
-        return _all_rows(vfn, mask, *rows)
+        if seg is None:
+            return _all_rows(vfn, mask, *rows)
+        return _all_rows(vfn, mask, *rows, targets=(jnp.asarray(np.where(seg >= 0, seg, n_segments)), n_segments))
 
     f = jax.custom_batching.custom_vmap(unbatched)
 
@@ -57,9 +67,24 @@ def sparse_map(fn, mask, *args, fraction: float = 1 / 8, min_rows: int = 64):
         groups = _regroup(is_table, list(zip(leaves, in_batched[1:])))  # (leaf, batched) per leaf
         getters = [_table_getter(*g[0], *g[1], axis_size, k) if table else _row_getter(*g, axis_size, k)
                    for table, g in zip(is_table, groups)]
+        targets = None
+        if seg is not None:  # flat rows -> their segments over the batch, [rows, m] (out of range: none)
+            total = axis_size * n_segments
+            own = jnp.asarray(seg)
+
+            def flat_segments(rows):
+                s = own[rows % k]
+                return jnp.where(s >= 0, (rows // k)[:, None] * n_segments + s, total)
+
+            targets = (flat_segments, total)
         out = _packed(vfn, _flat_mask(mask, in_batched[0], axis_size), lambda rows: tuple(g(rows) for g in getters),
-                      fraction, min_rows)
-        return _per_environment(out, axis_size, k)
+                      fraction, min_rows, targets)
+        if seg is None:
+            return _per_environment(out, axis_size, k)
+        rows_out, seg_out = out
+        rows_out, flags = _per_environment(rows_out, axis_size, k)
+        seg_out, seg_flags = _per_environment(seg_out, axis_size, n_segments)
+        return (rows_out, seg_out), (flags, seg_flags)
 
     return f(mask, *leaves)
 
@@ -129,8 +154,10 @@ def packed_rows(vfn, mask, *args, fraction: float = 1 / 8, min_rows: int = 64):
     return _packed(vfn, mask, fetch, fraction, min_rows)
 
 
-def _packed(vfn, mask, fetch, fraction: float, min_rows: int):
-    """:func:`packed_rows` with the arguments' rows given by ``fetch(row_indices)``.
+def _packed(vfn, mask, fetch, fraction: float, min_rows: int, targets=None):
+    """:func:`packed_rows` with the arguments' rows given by ``fetch(row_indices)``; with ``targets``
+    (``(segments_of(row_indices) -> [r, m], count)``) also the maxima per segment of ``vfn``'s second output
+    (:func:`sparse_map`'s ``segments``).
 
     The masked rows are found without a per-row rank: the mask is packed into 32-bit words, the
     words' bit counts are summed, and each chunk locates its ``r``-th masked row by a binary search
@@ -139,13 +166,16 @@ def _packed(vfn, mask, fetch, fraction: float, min_rows: int):
     """
     n = mask.shape[0]
     cap = n if n <= min_rows else min(n, max(min_rows, int(n * fraction)))  # static chunk capacity
+    every = jnp.arange(n, dtype=jnp.int32)
     if cap == n:  # one chunk holds every row (few envs): no packing
-        return _all_rows(vfn, mask, *fetch(jnp.arange(n, dtype=jnp.int32)))
+        return _all_rows(vfn, mask, *fetch(every), targets=None if targets is None else (targets[0](every), targets[1]))
     words = _words(mask)
     counts = jax.lax.population_count(words).astype(jnp.int32)
     ends = jax.lax.associative_scan(jnp.add, counts)  # masked rows up to and including each word
     count = ends[-1]
     out = jax.eval_shape(lambda r: vfn(*fetch(r)), jax.ShapeDtypeStruct((n,), jnp.int32))
+    if targets is not None:  # (row outputs, segment values [n, m]) -> (rows [n, ...], segment maxima [total])
+        out = (out[0], jax.tree_util.tree_map(lambda v: jax.ShapeDtypeStruct((targets[1],), v.dtype), out[1]))
     out = jax.tree_util.tree_map(lambda s: jnp.zeros(s.shape, s.dtype), out)
 
     def chunk(carry):
@@ -155,8 +185,12 @@ def _packed(vfn, mask, fetch, fraction: float, min_rows: int):
         within = r - (ends[k] - counts[k])
         rows = jnp.where(r < count, _select_bit(words[k], within) * words.shape[0] + k, n)
         res = vfn(*fetch(jnp.minimum(rows, n - 1)))
-        out = jax.tree_util.tree_map(lambda o, v: o.at[rows].set(v, mode="drop"), out, res)
-        return c + 1, out
+        if targets is None:
+            return c + 1, jax.tree_util.tree_map(lambda o, v: o.at[rows].set(v, mode="drop"), out, res)
+        rows_out = jax.tree_util.tree_map(lambda o, v: o.at[rows].set(v, mode="drop"), out[0], res[0])
+        t = jnp.where((rows < n)[:, None], targets[0](jnp.minimum(rows, n - 1)), targets[1])
+        seg_out = jax.tree_util.tree_map(lambda o, v: o.at[t].max(v, mode="drop"), out[1], res[1])
+        return c + 1, (rows_out, seg_out)
 
     _, out = jax.lax.while_loop(lambda carry: carry[0] * cap < count, chunk, (jnp.zeros((), jnp.int32), out))
     return out
@@ -202,12 +236,17 @@ def _select_bit(word, j):
     return pos.astype(jnp.int32)
 
 
-def _all_rows(vfn, mask, *args):
-    """``vfn`` on every row when any row is masked (one ``cond``), masked rows kept, zeros elsewhere."""
+def _all_rows(vfn, mask, *args, targets=None):
+    """``vfn`` on every row when any row is masked (one ``cond``), masked rows kept, zeros elsewhere; with
+    ``targets`` (``([n, m]`` segments, count)``, out of range: none) the second output's maxima per segment."""
     zeros = jax.tree_util.tree_map(lambda s: jnp.zeros(s.shape, s.dtype), jax.eval_shape(vfn, *args))
     res = jax.lax.cond(jnp.any(mask), lambda: vfn(*args), lambda: zeros)
-    return jax.tree_util.tree_map(
+    res = jax.tree_util.tree_map(
         lambda r: jnp.where(mask.reshape(mask.shape + (1,) * (r.ndim - 1)), r, jnp.zeros_like(r)), res)
+    if targets is None:
+        return res
+    t, total = targets
+    return res[0], jax.tree_util.tree_map(lambda v: jnp.zeros(total, v.dtype).at[t].max(v, mode="drop"), res[1])
 
 
 def grouped_rows(fn, mask, size: int):

@@ -38,6 +38,44 @@ def test_batched_rule_equals_dense_where(batch, rows, p):
     np.testing.assert_allclose(np.asarray(shared["a"]), np.asarray(jnp.where(m, ref["a"], 0)), rtol=1e-6, atol=1e-6)
 
 
+@pytest.mark.parametrize("batch, p, min_rows", [(1, 0.3, 4), (3, 0.5, 4), (3, 0.5, 64), (200, 0.05, 4),
+                                                 (200, 0.6, 4)])
+def test_segment_maxima_equal_brute_force(batch, p, min_rows):
+    """``segments``: each masked row's values go to its segments (-1: none); the maxima per segment against a loop
+    over the rows, batched (every row in one chunk, several chunks), unbatched, and with a shared argument."""
+    n_seg, k = 5, 12
+    rng = np.random.default_rng(batch)
+    segments = rng.integers(-1, n_seg, size=(k, 2))
+    segments[0] = -1  # a row that feeds no segment
+
+    def fn(x, i):
+        v = jnp.floor(jnp.abs(x[0]) * 10).astype(jnp.int32) + i
+        return x * 2.0, (jnp.stack([v, v + 1]), jnp.stack([x[1] > 0, x[1] <= 0]).astype(jnp.int32))
+
+    x = jnp.asarray(rng.normal(size=(batch, k, 2)), jnp.float32)
+    mask = jnp.asarray(rng.uniform(size=(batch, k)) < p)
+    index = jnp.arange(k, dtype=jnp.int32)
+    call = lambda m, a: sparse_map(fn, m, a, index, fraction=1 / 8, min_rows=min_rows, segments=segments,
+                                   n_segments=n_seg)
+    rows, (big, flag) = jax.jit(jax.vmap(call))(mask, x)
+    xs, ms = np.asarray(x), np.asarray(mask)
+    for e in range(batch):
+        want_big, want_flag = np.zeros(n_seg, np.int64), np.zeros(n_seg, np.int64)
+        for r in np.flatnonzero(ms[e]):
+            v = int(np.floor(np.abs(xs[e, r, 0]) * 10)) + r
+            for j, s in enumerate(segments[r]):
+                if s >= 0:
+                    want_big[s] = max(want_big[s], v + j)
+                    want_flag[s] = max(want_flag[s], int((xs[e, r, 1] > 0) if j == 0 else (xs[e, r, 1] <= 0)))
+        np.testing.assert_array_equal(np.asarray(big[e]), want_big)
+        np.testing.assert_array_equal(np.asarray(flag[e]), want_flag)
+        np.testing.assert_allclose(np.asarray(rows[e]), np.where(ms[e][:, None], xs[e] * 2, 0))
+    one_rows, (one_big, one_flag) = jax.jit(call)(mask[0], x[0])  # unbatched: the cond path
+    np.testing.assert_array_equal(np.asarray(one_big), np.asarray(big[0]))
+    np.testing.assert_array_equal(np.asarray(one_flag), np.asarray(flag[0]))
+    np.testing.assert_allclose(np.asarray(one_rows), np.asarray(rows[0]))
+
+
 def test_nested_vmap_equals_dense():
     k1, k2 = jax.random.split(jax.random.PRNGKey(3))
     x = jax.random.normal(k1, (4, 30, 3, 4))
