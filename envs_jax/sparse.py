@@ -52,6 +52,11 @@ def sparse_map(fn, mask, *args, fraction: float = 1 / 8, min_rows: int = 64, seg
     leaves = [x for a in args for x in ((a.table, a.index) if isinstance(a, TableRows) else (a,))]
 
     seg = None if segments is None else np.asarray(segments, np.int32)  # [k, m]: each row's segments (-1: none)
+    if seg is not None and (seg.ndim != 2 or seg.shape[0] != jnp.shape(mask)[-1] or seg.size == 0
+                            or seg.min() < -1 or seg.max() >= n_segments):
+        raise ValueError(f"sparse_map: segments must be a [rows, m] integer array with one row per mask row "
+                         f"({jnp.shape(mask)[-1]}) and values from -1 (none) to n_segments - 1 ({n_segments - 1}); "
+                         f"got shape {seg.shape}" + (f", values {seg.min()}..{seg.max()}" if seg.size else ""))
 
     def unbatched(mask, *leaves):
         rows = [g[0][g[1]] if table else g for table, g in zip(is_table, _regroup(is_table, leaves))]

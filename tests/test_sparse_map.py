@@ -74,6 +74,9 @@ def test_segment_maxima_equal_brute_force(batch, p, min_rows):
     np.testing.assert_array_equal(np.asarray(one_big), np.asarray(big[0]))
     np.testing.assert_array_equal(np.asarray(one_flag), np.asarray(flag[0]))
     np.testing.assert_allclose(np.asarray(one_rows), np.asarray(rows[0]))
+    for bad, n in ((segments[:5], n_seg), (segments, 3), (segments[:, 0], n_seg)):  # rows, range, shape
+        with pytest.raises(ValueError, match="segments"):
+            sparse_map(fn, mask[0], x[0], index, segments=bad, n_segments=n)
 
 
 def test_nested_vmap_equals_dense():
